@@ -1,0 +1,231 @@
+"""The one configuration object of bsslam, with every parameter named and its unit.
+
+Built in one place (:func:`SLAMConfig.from_dict`, used by the YAML loader in
+``bsslam.io.config_file``) and written next to every run's results.
+Names carry their units: ``_m`` metres, ``_rad`` radians.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from bsslam.errors import ConfigError
+
+
+def _check(condition: bool, message: str) -> None:
+    if not condition:
+        raise ConfigError(message)
+
+
+@dataclass(frozen=True)
+class SplineConfig:
+    """Shape of the map features.
+
+    Attributes:
+        degree: polynomial degree p of every spline (order κ = p + 1); 1 … 4.
+        knot_spacing_m: target distance ρ between consecutive knots along the curve (m).
+    """
+
+    degree: int = 3
+    knot_spacing_m: float = 1.0
+
+    def __post_init__(self) -> None:
+        _check(1 <= self.degree <= 4, f"spline.degree must be 1..4, got {self.degree}")
+        _check(self.knot_spacing_m > 0, "spline.knot_spacing_m must be > 0")
+
+
+@dataclass(frozen=True)
+class SegmentationConfig:
+    """Splitting a scan into runs of points that belong to one wall (paper §III-A).
+
+    Attributes:
+        alpha_max_rad: largest turn between consecutive point-to-point vectors (α_max, rad).
+        eta: largest ratio of consecutive point spacings (η, dimensionless, ≥ 1).
+        max_gap_m: largest distance between consecutive points of one segment (m).
+        min_points: fewest points in a segment (n_pr).
+        min_length_m: shortest segment kept (chord length, m); shorter ones are dropped
+            as small or dynamic objects.
+        min_range_m: beams at or below this range are invalid (m).
+        no_return_m: ranges at or above this value mean "no return" (m); None uses the
+            scan's own max_range only.
+    """
+
+    alpha_max_rad: float = math.radians(30.0)
+    eta: float = 2.0
+    max_gap_m: float = 0.5
+    min_points: int = 8
+    min_length_m: float = 0.3
+    min_range_m: float = 0.05
+    no_return_m: float | None = None
+
+    def __post_init__(self) -> None:
+        _check(0 < self.alpha_max_rad < math.pi, "segmentation.alpha_max_rad must be in (0, π)")
+        _check(self.eta >= 1.0, "segmentation.eta must be ≥ 1")
+        _check(self.max_gap_m > 0, "segmentation.max_gap_m must be > 0")
+        _check(self.min_points >= 2, "segmentation.min_points must be ≥ 2")
+        _check(self.min_length_m >= 0, "segmentation.min_length_m must be ≥ 0")
+        _check(self.min_range_m >= 0, "segmentation.min_range_m must be ≥ 0")
+
+
+@dataclass(frozen=True)
+class MotionNoiseConfig:
+    """Odometry noise, σ = a + b·|Δ| per component of the increment (paper §IV).
+
+    Attributes:
+        a_xy_m, b_xy: σ of Δx and Δy: a_xy_m + b_xy·|Δ| (m).
+        a_phi_rad, b_phi: σ of Δφ: a_phi_rad + b_phi·|Δφ| (rad).
+        b_phi_per_m_rad: extra σ of Δφ per metre travelled (rad/m); 0 in the paper.
+    """
+
+    a_xy_m: float = 0.001
+    b_xy: float = 0.1
+    a_phi_rad: float = 0.02
+    b_phi: float = 0.1
+    b_phi_per_m_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("a_xy_m", "b_xy", "a_phi_rad", "b_phi", "b_phi_per_m_rad"):
+            _check(getattr(self, name) >= 0, f"motion.{name} must be ≥ 0")
+
+
+@dataclass(frozen=True)
+class ObservationConfig:
+    """The range observation model and its gates (paper §III-D, §III-E).
+
+    Attributes:
+        sigma_range_m: σ of one laser range (m).
+        r_inflation: factor on the range variance R (the paper's "inflated R" uses 3).
+        gate_probability: χ² (1 dof) probability of the per-beam innovation gate.
+        max_incidence_rad: beams hitting a wall more obliquely than this (angle between
+            beam and wall normal) are dropped as grazing (rad).
+        beam_stride: use every k-th beam of a segment in the update (1 = all).
+    """
+
+    sigma_range_m: float = 0.005
+    r_inflation: float = 1.0
+    gate_probability: float = 0.99
+    max_incidence_rad: float = math.radians(75.0)
+    beam_stride: int = 1
+
+    def __post_init__(self) -> None:
+        _check(self.sigma_range_m > 0, "observation.sigma_range_m must be > 0")
+        _check(self.r_inflation > 0, "observation.r_inflation must be > 0")
+        _check(0 < self.gate_probability < 1, "observation.gate_probability must be in (0, 1)")
+        _check(0 < self.max_incidence_rad < math.pi / 2, "observation.max_incidence_rad must be in (0, π/2)")
+        _check(self.beam_stride >= 1, "observation.beam_stride must be ≥ 1")
+
+
+@dataclass(frozen=True)
+class AssociationConfig:
+    """Matching observed splines to map splines (paper §III-B, Fig. 6).
+
+    Attributes:
+        control_point_gate_factor: the cheap gate δ_mincp as a multiple of the knot
+            spacing ρ (the paper uses 1/2).
+        match_distance_m: δ_match, the largest distance between corresponding end points (m).
+        map_radius_m: only map splines whose bounding box comes this close to the robot
+            are considered (m).
+    """
+
+    control_point_gate_factor: float = 0.5
+    match_distance_m: float = 0.25
+    map_radius_m: float = 12.0
+
+    def __post_init__(self) -> None:
+        _check(self.control_point_gate_factor > 0, "association.control_point_gate_factor must be > 0")
+        _check(self.match_distance_m > 0, "association.match_distance_m must be > 0")
+        _check(self.map_radius_m > 0, "association.map_radius_m must be > 0")
+
+
+@dataclass(frozen=True)
+class MappingConfig:
+    """Growing the map (paper §III-F).
+
+    Attributes:
+        extend: extend map splines at their ends (True) or add new splines instead.
+        min_extension_m: the shortest unmatched stretch of an observed spline that extends a
+            map spline or becomes a new one (m).
+    """
+
+    extend: bool = True
+    min_extension_m: float = 0.3
+
+    def __post_init__(self) -> None:
+        _check(self.min_extension_m >= 0, "mapping.min_extension_m must be ≥ 0")
+
+
+Mode = Literal["slam", "localization"]
+
+
+@dataclass(frozen=True)
+class SLAMConfig:
+    """Everything the filter needs. ``mode`` is "slam" (full EKF-SLAM) or "localization"
+    (localisation with map building: features fixed with zero uncertainty, paper §9).
+
+    Attributes:
+        initial_pose_sigma: σ of the initial pose (x m, y m, φ rad).
+    """
+
+    spline: SplineConfig = field(default_factory=SplineConfig)
+    segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
+    motion: MotionNoiseConfig = field(default_factory=MotionNoiseConfig)
+    observation: ObservationConfig = field(default_factory=ObservationConfig)
+    association: AssociationConfig = field(default_factory=AssociationConfig)
+    mapping: MappingConfig = field(default_factory=MappingConfig)
+    mode: Mode = "slam"
+    initial_pose_sigma: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        _check(self.mode in ("slam", "localization"), f"mode must be 'slam' or 'localization', got {self.mode!r}")
+        _check(len(self.initial_pose_sigma) == 3 and all(s >= 0 for s in self.initial_pose_sigma),
+               "initial_pose_sigma must be three values ≥ 0")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Nested plain dict (YAML/JSON-ready)."""
+        d = dataclasses.asdict(self)
+        d["initial_pose_sigma"] = list(self.initial_pose_sigma)
+        return d
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any] | None) -> "SLAMConfig":
+        """Build from a nested dict; unknown keys are an error (no silent typos)."""
+        data = dict(data or {})
+        sections = {f.name: f for f in dataclasses.fields(cls)}
+        kwargs: dict[str, Any] = {}
+        for key, value in data.items():
+            if key not in sections:
+                raise ConfigError(f"unknown configuration key {key!r}; known: {sorted(sections)}")
+            sub = _SECTION_TYPES.get(key)
+            if sub is not None:
+                if not isinstance(value, dict):
+                    raise ConfigError(f"configuration section {key!r} must be a mapping")
+                known = {f.name for f in dataclasses.fields(sub)}
+                unknown = set(value) - known
+                if unknown:
+                    raise ConfigError(f"unknown key(s) {sorted(unknown)} in section {key!r}; known: {sorted(known)}")
+                try:
+                    kwargs[key] = sub(**value)
+                except TypeError as exc:
+                    raise ConfigError(f"section {key!r}: {exc}") from None
+            elif key == "initial_pose_sigma":
+                kwargs[key] = tuple(float(v) for v in value)
+            else:
+                kwargs[key] = value
+        return cls(**kwargs)
+
+    def replace(self, **sections: Any) -> "SLAMConfig":
+        """A copy with whole sections or top-level fields replaced."""
+        return dataclasses.replace(self, **sections)
+
+
+_SECTION_TYPES = {
+    "spline": SplineConfig,
+    "segmentation": SegmentationConfig,
+    "motion": MotionNoiseConfig,
+    "observation": ObservationConfig,
+    "association": AssociationConfig,
+    "mapping": MappingConfig,
+}
