@@ -1,0 +1,358 @@
+"""BS-SLAM: the EKF with B-spline map features (paper §III).
+
+``SplineSLAM.step`` is the whole per-scan algorithm, in the paper's order:
+predict → segment and fit → associate → update → extend / add.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bsslam.config import SLAMConfig
+from bsslam.errors import FilterError, FitError, InputError
+from bsslam.scan import LaserScan, ObservedSpline, extract_splines
+from bsslam.slam.association import Match, associate
+from bsslam.slam.ekf import gate_threshold, stacked_update
+from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
+from bsslam.slam.features import MapSpline, SplineFeature
+from bsslam.slam.motion import motion_noise, predict
+from bsslam.slam.observation import laser_pose, predict_beams
+from bsslam.slam.state import JointState
+from bsslam.spline import extend_curve
+from bsslam.trajectory import wrap_angle
+
+
+@dataclass
+class StepReport:
+    """What one :meth:`SplineSLAM.step` did.
+
+    Attributes:
+        innovations: (m,) range innovations of the beams used (m).
+        innovation_variances: (m,) their variances S_ii (m²).
+        nis: normalised innovation squared of the stacked update; χ² with ``nis_dof`` dof.
+        nis_dof: number of beams in the update.
+        observed_splines: splines fitted to the scan.
+        matched_splines: observed splines associated with at least one map spline.
+        new_splines, extended_splines: map enlargements made this step.
+        beams_used: beams in the EKF update.
+        beams_dropped: beams left out of the update, by reason (missed the curve, grazing,
+            innovation gate).
+        scan_counts: the segmenter's counts (invalid beams by reason, short segments …).
+        state_size: dimension of the state after the step.
+    """
+
+    innovations: np.ndarray = field(default_factory=lambda: np.empty(0))
+    innovation_variances: np.ndarray = field(default_factory=lambda: np.empty(0))
+    nis: float = 0.0
+    nis_dof: int = 0
+    observed_splines: int = 0
+    matched_splines: int = 0
+    new_splines: int = 0
+    extended_splines: int = 0
+    beams_used: int = 0
+    beams_dropped: dict[str, int] = field(default_factory=dict)
+    scan_counts: dict[str, int] = field(default_factory=dict)
+    state_size: int = 3
+
+    def drop(self, reason: str, count: int) -> None:
+        if count:
+            self.beams_dropped[reason] = self.beams_dropped.get(reason, 0) + int(count)
+
+
+@dataclass
+class _BeamGroup:
+    """Beams of one scan assigned to one map spline."""
+
+    feature: SplineFeature
+    bearings: np.ndarray
+    ranges: np.ndarray
+    t0: np.ndarray
+
+
+class SplineSLAM:
+    """EKF-SLAM with B-spline features, usable from Python without the CLI.
+
+    >>> slam = SplineSLAM(SLAMConfig())
+    >>> report = slam.step(np.zeros(3), scan)   # doctest: +SKIP
+    >>> slam.pose, slam.pose_covariance, slam.map  # doctest: +SKIP
+    """
+
+    def __init__(self, config: SLAMConfig | None = None, initial_pose=(0.0, 0.0, 0.0),
+                 initial_covariance: np.ndarray | None = None):
+        self.config = config or SLAMConfig()
+        if initial_covariance is None:
+            initial_covariance = np.diag(np.square(self.config.initial_pose_sigma))
+        self.state = JointState(np.asarray(initial_pose, dtype=float), np.asarray(initial_covariance, dtype=float))
+        self.features: dict[int, SplineFeature] = {}
+        self.steps = 0
+        self._next_id = 0
+        self._gate = gate_threshold(self.config.observation.gate_probability)
+
+    # -- public views -------------------------------------------------------------------
+    @property
+    def pose(self) -> np.ndarray:
+        """(3,) current pose estimate (x m, y m, φ rad)."""
+        return self.state.pose.copy()
+
+    @property
+    def pose_covariance(self) -> np.ndarray:
+        """(3, 3) covariance of the pose."""
+        return self.state.P[:3, :3].copy()
+
+    @property
+    def state_size(self) -> int:
+        return self.state.size
+
+    @property
+    def map(self) -> list[MapSpline]:
+        """The map splines with their covariance blocks."""
+        x, P = self.state.x, self.state.P
+        out = []
+        for f in self.features.values():
+            if f.in_state:
+                idx = f.state_indices
+                cov = P[np.ix_(idx, idx)].copy()
+            else:
+                cov = np.zeros((2 * f.knots.size - 2 * f.degree - 2,) * 2)
+            out.append(MapSpline(f.id, f.curve(x), cov))
+        return out
+
+    @property
+    def _range_variance(self) -> float:
+        obs = self.config.observation
+        return obs.sigma_range_m ** 2 * obs.r_inflation
+
+    # -- the algorithm ------------------------------------------------------------------
+    def step(self, odometry_delta, scan: LaserScan, laser_offset=None) -> StepReport:
+        """Process one scan.
+
+        Args:
+            odometry_delta: (3,) robot-frame increment (Δx m, Δy m, Δφ rad) since the last step.
+            scan: the laser scan taken at the new pose.
+            laser_offset: (3,) laser pose in the robot frame; zeros by default.
+        """
+        delta = np.asarray(odometry_delta, dtype=float).reshape(-1)
+        if delta.shape != (3,) or not np.all(np.isfinite(delta)):
+            raise InputError(f"odometry increment must be 3 finite numbers, got {odometry_delta!r}")
+        offset = np.zeros(3) if laser_offset is None else np.asarray(laser_offset, dtype=float)
+        report = StepReport()
+        self._predict(delta)
+        observed = self._observe(scan, report)
+        matches = self._associate(observed, offset)
+        self._update(observed, matches, offset, report)
+        self._enlarge(observed, matches, offset, report)
+        self.steps += 1
+        report.state_size = self.state.size
+        return report
+
+    def _predict(self, delta: np.ndarray) -> None:
+        predict(self.state.x, self.state.P, delta, motion_noise(delta, self.config.motion))
+
+    def _observe(self, scan: LaserScan, report: StepReport) -> list[ObservedSpline]:
+        features = extract_splines(scan, self.config)
+        report.scan_counts = dict(features.counts)
+        report.observed_splines = len(features.splines)
+        return features.splines
+
+    def _associate(self, observed: list[ObservedSpline], offset: np.ndarray) -> list[list[Match]]:
+        cfg = self.config
+        lp = laser_pose(self.state.pose, offset)
+        world = [o.curve.transformed(lp[2], lp[:2]) for o in observed]
+        x = self.state.x
+        radius = cfg.association.map_radius_m
+        candidates = {}
+        for f in self.features.values():
+            curve = f.curve(x)
+            b = curve.bbox()
+            # distance from the robot to the box; only nearby features are candidates
+            dx = max(b[0] - lp[0], 0.0, lp[0] - b[2])
+            dy = max(b[1] - lp[1], 0.0, lp[1] - b[3])
+            if dx * dx + dy * dy <= radius * radius:
+                candidates[f.id] = curve
+        gate = cfg.association.control_point_gate_factor * cfg.spline.knot_spacing_m
+        return associate(world, candidates, gate, cfg.association.match_distance_m)
+
+    def _beam_groups(self, observed: list[ObservedSpline], matches: list[list[Match]]) -> list[_BeamGroup]:
+        stride = self.config.observation.beam_stride
+        groups: dict[int, list[tuple]] = {}
+        for obs, obs_matches in zip(observed, matches):
+            taken = np.zeros(obs.params.shape[0], dtype=bool)
+            if stride > 1:
+                taken[np.arange(obs.params.shape[0]) % stride != 0] = True
+            for m in obs_matches:
+                sel = ~taken & (obs.params >= m.u_ini) & (obs.params <= m.u_fin)
+                if not sel.any():
+                    continue
+                taken |= sel
+                groups.setdefault(m.feature_id, []).append(
+                    (obs.angles[sel], obs.ranges[sel], m.map_parameter(obs.params[sel])))
+        out = []
+        for fid, parts in groups.items():
+            b, r, t = (np.concatenate(p) for p in zip(*parts))
+            out.append(_BeamGroup(self.features[fid], b, r, t))
+        return out
+
+    def _update(self, observed, matches, offset, report: StepReport) -> None:
+        groups = self._beam_groups(observed, matches)
+        report.matched_splines = sum(1 for m in matches if m)
+        if not groups:
+            return
+        cfg = self.config.observation
+        x = self.state.x
+        pose = x[:3].copy()
+        max_tan = math.tan(cfg.max_incidence_rad)
+        rows_pose, rows_cp_cols, rows_cp_vals, innov = [], [], [], []
+        for g in groups:
+            f = g.feature
+            pred = predict_beams(f.curve(x), pose, offset, g.bearings, t0=g.t0)
+            ok = pred.hit & np.isfinite(pred.z)
+            report.drop("missed", int((~ok).sum()))
+            grazing = ok & (np.abs(pred.r) > max_tan)
+            report.drop("grazing", int(grazing.sum()))
+            ok &= ~grazing
+            if not ok.any():
+                continue
+            f.observations += 1
+            innov.append(g.ranges[ok] - pred.z[ok])
+            rows_pose.append(pred.H_pose[ok])
+            if f.in_state:
+                cp = pred.first_cp[ok][:, None] + np.arange(f.degree + 1)[None, :]
+                rows_cp_cols.append(np.hstack([f.idx_x[cp], f.idx_y[cp]]))
+                rows_cp_vals.append(np.hstack([pred.H_cp_x[ok], pred.H_cp_y[ok]]))
+        if not innov:
+            return
+        nu = np.concatenate(innov)
+        H_pose = np.vstack(rows_pose)
+        if rows_cp_cols:
+            # Features may differ in degree, so pad the per-beam column lists to one width.
+            width = max(c.shape[1] for c in rows_cp_cols)
+            cp_cols = np.vstack([np.pad(c, ((0, 0), (0, width - c.shape[1])), constant_values=-1) for c in rows_cp_cols])
+            cp_vals = np.vstack([np.pad(v, ((0, 0), (0, width - v.shape[1]))) for v in rows_cp_vals])
+            used = cp_cols >= 0
+            cols = np.concatenate([np.arange(3), np.unique(cp_cols[used])])
+        else:
+            cols = np.arange(3)
+        H_c = np.zeros((nu.shape[0], cols.shape[0]))
+        H_c[:, :3] = H_pose
+        if rows_cp_cols:
+            r_idx, k_idx = np.nonzero(used)
+            H_c[r_idx, np.searchsorted(cols[3:], cp_cols[used]) + 3] = cp_vals[used]
+        result = stacked_update(self.state, cols, H_c, nu, self._range_variance, gate=self._gate)
+        self.state.x[2] = wrap_angle(self.state.x[2])
+        report.drop("gate", int((~result.accepted).sum()))
+        report.innovations = result.innovation
+        report.innovation_variances = result.innovation_variance
+        report.nis = result.nis
+        report.nis_dof = int(result.innovation.shape[0])
+        report.beams_used = report.nis_dof
+
+    # -- map enlargement ----------------------------------------------------------------
+    def _enlarge(self, observed, matches, offset, report: StepReport) -> None:
+        cfg = self.config
+        min_len = cfg.mapping.min_extension_m
+        extended: set[tuple[int, str]] = set()
+        for obs, obs_matches in zip(observed, matches):
+            if not obs_matches:
+                self._add_feature(obs, np.ones(obs.params.shape[0], dtype=bool), offset)
+                report.new_splines += 1
+                continue
+            lo_o, hi_o = obs.curve.domain
+            first, last = obs_matches[0], obs_matches[-1]
+            # Stretches beyond the matched intervals: extend the map spline whose end they
+            # continue, or (without extension) start new splines from them.
+            for side, match, u0, u1 in (("left", first, lo_o, first.u_ini), ("right", last, last.u_fin, hi_o)):
+                if u1 - u0 < min_len:
+                    continue
+                at_end = match.at_lo if side == "left" else match.at_hi
+                sel = (obs.params < u1) if side == "left" else (obs.params > u0)
+                if sel.sum() < obs.curve.degree + 2:
+                    continue
+                if cfg.mapping.extend and at_end and (match.feature_id, side) not in extended:
+                    if self._extend_feature(self.features[match.feature_id], obs, match, side, sel, offset):
+                        extended.add((match.feature_id, side))
+                        report.extended_splines += 1
+                elif not cfg.mapping.extend and at_end:
+                    if self._add_feature(obs, sel, offset, refit=True):
+                        report.new_splines += 1
+
+    def _new_id(self) -> int:
+        self._next_id += 1
+        return self._next_id - 1
+
+    def _add_feature(self, obs: ObservedSpline, sel: np.ndarray, offset: np.ndarray, refit: bool = False) -> bool:
+        cfg = self.config
+        if refit:
+            from bsslam.spline import fit_curve
+            try:
+                fit = fit_curve(obs.points[sel], cfg.spline.degree, cfg.spline.knot_spacing_m)
+            except FitError:
+                return False
+            phi, knots = fit.phi, fit.curve.knots
+        else:
+            phi, knots = obs.phi, obs.curve.knots
+        bp = beam_points(self.state.pose, offset, obs.angles[sel], obs.ranges[sel])
+        block = new_feature_block(phi, bp)
+        n = phi.shape[0]
+        feature = SplineFeature(self._new_id(), obs.curve.degree, knots.copy(), created=self.steps)
+        if cfg.mode == "localization":
+            feature.fixed_control_points = block.mean.reshape(2, n).T.copy()
+        else:
+            cross, cov = block.covariance_terms(self.state.P, self._range_variance)
+            idx = self.state.append(block.mean, cross, cov)
+            feature.idx_x, feature.idx_y = idx[:n], idx[n:]
+        self.features[feature.id] = feature
+        return True
+
+    def _extend_feature(self, f: SplineFeature, obs: ObservedSpline, match: Match, side: str,
+                        sel: np.ndarray, offset: np.ndarray) -> bool:
+        x = self.state.x
+        curve = f.curve(x)
+        lo, hi = curve.domain
+        u = obs.params[sel]
+        # continue the map spline's chord-length parameter from the joining point
+        params = hi + (u - match.u_fin) if side == "right" else lo - (match.u_ini - u)
+        bp = beam_points(self.state.pose, offset, obs.angles[sel], obs.ranges[sel])
+        try:
+            ext = extend_curve(curve, side, bp.points, params, self.config.spline.knot_spacing_m)
+        except FitError:
+            return False
+        n_old, m = curve.n_control, ext.n_added
+        new_rows = ext.psi[n_old:] if side == "right" else ext.psi[:m]
+        if not f.in_state:
+            f.fixed_control_points = ext.curve.control_points.copy()
+            f.knots = ext.curve.knots.copy()
+            return True
+        block = extension_block(new_rows, n_old, f.idx_x, f.idx_y, curve.control_points, bp)
+        cross, cov = block.covariance_terms(self.state.P, self._range_variance)
+        new_idx = self.state.append(block.mean, cross, cov)
+        self._transform_block(f.idx_x, ext.T)
+        self._transform_block(f.idx_y, ext.T)
+        new_x, new_y = new_idx[:m], new_idx[m:]
+        if side == "right":
+            f.idx_x, f.idx_y = np.concatenate([f.idx_x, new_x]), np.concatenate([f.idx_y, new_y])
+        else:
+            f.idx_x, f.idx_y = np.concatenate([new_x, f.idx_x]), np.concatenate([new_y, f.idx_y])
+        f.knots = ext.curve.knots.copy()
+        return True
+
+    def _transform_block(self, idx: np.ndarray, T: np.ndarray) -> None:
+        """x[idx] ← T x[idx] with P's rows and columns carried exactly: P ← T P Tᵀ on that block."""
+        x, P = self.state.x, self.state.P
+        x[idx] = T @ x[idx]
+        P[idx, :] = T @ P[idx, :]
+        P[:, idx] = P[:, idx] @ T.T
+
+    def remove_feature(self, feature_id: int) -> None:
+        """Delete a map spline and its rows/columns of the state."""
+        f = self.features.pop(feature_id)
+        if not f.in_state:
+            return
+        mapping = self.state.remove(f.state_indices)
+        for g in self.features.values():
+            if g.in_state:
+                g.idx_x, g.idx_y = mapping[g.idx_x], mapping[g.idx_y]
+                if np.any(g.idx_x < 0) or np.any(g.idx_y < 0):  # pragma: no cover - indices are disjoint
+                    raise FilterError("feature indices overlapped")

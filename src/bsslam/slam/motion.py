@@ -1,0 +1,62 @@
+"""Odometry motion model and prediction (spec §5, paper §III-E.1).
+
+The increment ``u = (Δx, Δy, Δφ)`` is expressed in the robot frame at the previous pose.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bsslam.config import MotionNoiseConfig
+from bsslam.trajectory import wrap_angle
+
+
+def compose(pose: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """pose ⊕ delta: (3,) world pose after moving by a robot-frame increment (3,)."""
+    x, y, phi = pose
+    c, s = np.cos(phi), np.sin(phi)
+    return np.array([x + delta[0] * c - delta[1] * s, y + delta[0] * s + delta[1] * c,
+                     float(wrap_angle(phi + delta[2]))])
+
+
+def relative(pose_from: np.ndarray, pose_to: np.ndarray) -> np.ndarray:
+    """pose_from⁻¹ ⊕ pose_to: the robot-frame increment (3,) between two world poses."""
+    dx, dy = pose_to[0] - pose_from[0], pose_to[1] - pose_from[1]
+    c, s = np.cos(pose_from[2]), np.sin(pose_from[2])
+    return np.array([c * dx + s * dy, -s * dx + c * dy, float(wrap_angle(pose_to[2] - pose_from[2]))])
+
+
+def motion_jacobians(pose: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Jacobians of :func:`compose` w.r.t. the pose (F_x, 3×3) and the increment (F_u, 3×3)."""
+    phi = pose[2]
+    c, s = np.cos(phi), np.sin(phi)
+    F_x = np.array([[1.0, 0.0, -delta[0] * s - delta[1] * c],
+                    [0.0, 1.0, delta[0] * c - delta[1] * s],
+                    [0.0, 0.0, 1.0]])
+    F_u = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return F_x, F_u
+
+
+def motion_noise(delta: np.ndarray, cfg: MotionNoiseConfig) -> np.ndarray:
+    """Q (3×3): σ = a + b·|Δ| per component (paper §IV), plus an optional heading term
+    proportional to the distance travelled."""
+    dist = float(np.hypot(delta[0], delta[1]))
+    sx = cfg.a_xy_m + cfg.b_xy * abs(delta[0])
+    sy = cfg.a_xy_m + cfg.b_xy * abs(delta[1])
+    sphi = cfg.a_phi_rad + cfg.b_phi * abs(delta[2]) + cfg.b_phi_per_m_rad * dist
+    return np.diag([sx * sx, sy * sy, sphi * sphi])
+
+
+def predict(x: np.ndarray, P: np.ndarray, delta: np.ndarray, Q: np.ndarray) -> None:
+    """EKF prediction in place on the live state views.
+
+    Only the pose block and the pose rows/columns change:
+    ``P_rr ← F_x P_rr F_xᵀ + F_u Q F_uᵀ``, ``P_rm ← F_x P_rm`` — never the full F of (32).
+    """
+    F_x, F_u = motion_jacobians(x[:3], delta)
+    x[:3] = compose(x[:3], delta)
+    P_rm = F_x @ P[:3, 3:]
+    P_rr = F_x @ P[:3, :3] @ F_x.T + F_u @ Q @ F_u.T
+    P[:3, 3:] = P_rm
+    P[3:, :3] = P_rm.T
+    P[:3, :3] = 0.5 * (P_rr + P_rr.T)
