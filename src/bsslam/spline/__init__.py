@@ -1,0 +1,26 @@
+"""B-spline maths for BS-SLAM: knots, basis, curves, fitting, closest points, ray
+intersection and extension. Imports numpy and scipy only.
+
+Everything speaks in *degree* p (order κ = p + 1); points are (m, 2) arrays in metres.
+"""
+
+from bsslam.spline.basis import basis_functions, collocation_matrix, find_span
+from bsslam.spline.curve import BSplineCurve
+from bsslam.spline.fit import FitResult, chord_length_parameters, fit_curve
+from bsslam.spline.knots import clamped_knots, knot_domain, n_control_points, uniform_knots
+from bsslam.spline.pieces import PolynomialPieces
+
+__all__ = [
+    "BSplineCurve",
+    "FitResult",
+    "PolynomialPieces",
+    "basis_functions",
+    "chord_length_parameters",
+    "clamped_knots",
+    "collocation_matrix",
+    "find_span",
+    "fit_curve",
+    "knot_domain",
+    "n_control_points",
+    "uniform_knots",
+]

@@ -1,0 +1,185 @@
+"""B-spline basis functions and their derivatives by the local Cox–de Boor triangle.
+
+Only the degree + 1 basis functions that are non-zero on a knot span are ever computed
+(spec §1, paper (5)), vectorised over many parameter values: the Python loops run over
+the degree and the derivative order only (Piegl & Tiller, *The NURBS Book*, A2.3).
+
+Convention: ``degree`` is the polynomial degree p (order κ = p + 1). Parameters and knots
+are in metres of arc length; the k-th derivative is per metreᵏ.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse
+
+from bsslam.errors import SplineError
+
+
+def as_parameters(t: object) -> np.ndarray:
+    """Parameters as a float64 (m,) array; a scalar becomes (1,)."""
+    arr = np.asarray(t, dtype=float)
+    if arr.ndim == 0:
+        return arr.reshape(1)
+    if arr.ndim != 1:
+        raise SplineError(f"parameters must be a scalar or a 1-D array, got shape {arr.shape}")
+    return arr
+
+
+def find_span(knots: np.ndarray, degree: int, t: object) -> np.ndarray:
+    """Knot span index of each parameter.
+
+    Args:
+        knots: (n_control + degree + 1,) non-decreasing knot vector.
+        degree: polynomial degree p.
+        t: scalar or (m,) parameters (m).
+
+    Returns:
+        (m,) int array ``i`` with ``knots[i] <= t < knots[i+1]`` and
+        ``degree <= i <= n_control - 1``. ``t`` at the domain end gets the last non-empty
+        span; ``t`` outside the domain (and NaN) gets the span of the nearest domain end.
+    """
+    knots = np.asarray(knots, dtype=float)
+    t = as_parameters(t)
+    n_control = knots.shape[0] - degree - 1
+    lo, hi = knots[degree], knots[n_control]
+    # The first span that starts at the domain start, and the last one that ends at its end:
+    # repeated knots make empty spans that must never be chosen.
+    first = np.searchsorted(knots, lo, side="right") - 1
+    last = np.searchsorted(knots, hi, side="left") - 1
+    return np.clip(np.searchsorted(knots, t, side="right") - 1, first, last)
+
+
+def _basis_triangle(knots: np.ndarray, degree: int, t: np.ndarray, span: np.ndarray) -> np.ndarray:
+    """The table ``ndu`` of Piegl & Tiller A2.3, shape (degree+1, degree+1, m).
+
+    Upper triangle ``ndu[r, j]``: the non-zero degree-j basis functions on the span;
+    lower triangle ``ndu[j, r]`` (j > r): the knot differences used as denominators.
+    The differences are > 0 for any non-empty span, so no 0/0 occurs.
+    """
+    m = t.shape[0]
+    ndu = np.empty((degree + 1, degree + 1, m))
+    left = np.empty((degree + 1, m))
+    right = np.empty((degree + 1, m))
+    ndu[0, 0] = 1.0
+    for j in range(1, degree + 1):
+        left[j] = t - knots[span + 1 - j]
+        right[j] = knots[span + j] - t
+        saved = np.zeros(m)
+        for r in range(j):
+            ndu[j, r] = right[r + 1] + left[j - r]
+            temp = ndu[r, j - 1] / ndu[j, r]
+            ndu[r, j] = saved + right[r + 1] * temp
+            saved = left[j - r] * temp
+        ndu[j, j] = saved
+    return ndu
+
+
+def _derivatives_from_triangle(ndu: np.ndarray, degree: int, nder: int) -> np.ndarray:
+    """Derivatives 0 … nder of the non-zero basis functions, shape (nder+1, degree+1, m).
+
+    Piegl & Tiller A2.3, second part; every branch depends only on (r, k, degree), so the
+    whole algorithm vectorises over the parameters.
+    """
+    p = degree
+    m = ndu.shape[2]
+    ders = np.zeros((nder + 1, p + 1, m))
+    ders[0] = ndu[:, p]
+    top = min(nder, p)  # derivatives of order > degree vanish
+    for r in range(p + 1):
+        a_prev = np.zeros((p + 1, m))
+        a_next = np.zeros((p + 1, m))
+        a_prev[0] = 1.0
+        for k in range(1, top + 1):
+            d = np.zeros(m)
+            rk, pk = r - k, p - k
+            if r >= k:
+                a_next[0] = a_prev[0] / ndu[pk + 1, rk]
+                d = a_next[0] * ndu[rk, pk]
+            j1 = 1 if rk >= -1 else -rk
+            j2 = k - 1 if r - 1 <= pk else p - r
+            for j in range(j1, j2 + 1):
+                a_next[j] = (a_prev[j] - a_prev[j - 1]) / ndu[pk + 1, rk + j]
+                d = d + a_next[j] * ndu[rk + j, pk]
+            if r <= pk:
+                a_next[k] = -a_prev[k - 1] / ndu[pk + 1, r]
+                d = d + a_next[k] * ndu[r, pk]
+            ders[k, r] = d
+            a_prev, a_next = a_next, a_prev
+    factor = float(p)
+    for k in range(1, top + 1):
+        ders[k] *= factor
+        factor *= p - k
+    return ders
+
+
+def basis_functions(
+    knots: np.ndarray,
+    degree: int,
+    t: object,
+    nder: int = 0,
+    *,
+    span: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The degree + 1 non-zero basis functions (and derivatives) at each parameter.
+
+    Args:
+        knots: (n_control + degree + 1,) non-decreasing knot vector.
+        degree: polynomial degree p (order κ = p + 1).
+        t: scalar or (m,) parameters (m). Without ``span`` they are clamped into the
+            domain ``[knots[degree], knots[-degree-1]]`` (no extrapolation).
+        nder: highest derivative order wanted (≥ 0); orders above ``degree`` are zero.
+        span: optional (m,) non-empty knot spans to use instead of :func:`find_span`;
+            then ``t`` is not clamped and the polynomial piece of that span is evaluated
+            (e.g. the left limit at a knot).
+
+    Returns:
+        ``(span, values)``: span (m,) int, values (nder+1, m, degree+1) where
+        ``values[k, j, r]`` is the k-th derivative (per mᵏ) of basis function
+        ``span[j] - degree + r`` at ``t[j]``.
+    """
+    if nder < 0:
+        raise SplineError(f"nder must be ≥ 0, got {nder}")
+    knots = np.asarray(knots, dtype=float)
+    t = as_parameters(t)
+    if span is None:
+        span = find_span(knots, degree, t)
+        t = np.clip(t, knots[degree], knots[-degree - 1])
+    else:
+        span = np.asarray(span, dtype=np.intp).reshape(t.shape)
+    ndu = _basis_triangle(knots, degree, t, span)
+    ders = _derivatives_from_triangle(ndu, degree, nder)
+    return span, np.ascontiguousarray(ders.transpose(0, 2, 1))
+
+
+def collocation_matrix(
+    knots: np.ndarray,
+    degree: int,
+    t: object,
+    nder: int = 0,
+    sparse: bool = False,
+) -> np.ndarray | scipy.sparse.csr_matrix:
+    """Collocation matrix ``B[j, i] = β_i⁽ⁿᵈᵉʳ⁾(t_j)`` (paper (8)).
+
+    Args:
+        knots: (n_control + degree + 1,) knot vector.
+        degree: polynomial degree p.
+        t: scalar or (m,) parameters (m), clamped into the domain.
+        nder: derivative order of the basis functions in the matrix (0 = values).
+        sparse: return a scipy.sparse CSR matrix (degree + 1 stored entries a row).
+
+    Returns:
+        (m, n_control) dense float64 array, or CSR matrix of that shape.
+    """
+    knots = np.asarray(knots, dtype=float)
+    n_control = knots.shape[0] - degree - 1
+    span, values = basis_functions(knots, degree, t, nder)
+    m = span.shape[0]
+    cols = span[:, None] - degree + np.arange(degree + 1)
+    vals = values[nder]
+    if sparse:
+        indptr = np.arange(0, m * (degree + 1) + 1, degree + 1)
+        return scipy.sparse.csr_matrix((vals.ravel(), cols.ravel(), indptr), shape=(m, n_control))
+    out = np.zeros((m, n_control))
+    np.put_along_axis(out, cols, vals, axis=1)
+    return out
