@@ -1,0 +1,46 @@
+"""Simulated worlds with exact geometry, a laser/odometry simulator and a Monte Carlo runner.
+
+Typical use::
+
+    from bsslam.sim import get_world, simulate, SimConfig
+    data = simulate(get_world("rounded-room"), SimConfig(), seed=3)
+    for frame in data: ...          # Frame(stamp, odometry pose, scan)
+    data.ground_truth.poses         # (N, 3) exact poses
+"""
+
+from bsslam.sim.geometry import Arc, PolarCurve, Segment, WallSet, ray_cast, rounded_rectangle_walls
+from bsslam.sim.montecarlo import limit_blas_threads, run_monte_carlo
+from bsslam.sim.paths import LoopPath, StationaryPath, rounded_rectangle_loop
+from bsslam.sim.simulator import (
+    SimConfig,
+    SimulatedDataset,
+    compose_increments,
+    increment_sigma,
+    relative_increments,
+    simulate,
+)
+from bsslam.sim.worlds import DEFAULT_WORLD, WORLDS, World, get_world
+
+__all__ = [
+    "Arc",
+    "DEFAULT_WORLD",
+    "LoopPath",
+    "PolarCurve",
+    "Segment",
+    "SimConfig",
+    "SimulatedDataset",
+    "StationaryPath",
+    "WORLDS",
+    "WallSet",
+    "World",
+    "compose_increments",
+    "get_world",
+    "increment_sigma",
+    "limit_blas_threads",
+    "relative_increments",
+    "ray_cast",
+    "rounded_rectangle_loop",
+    "rounded_rectangle_walls",
+    "run_monte_carlo",
+    "simulate",
+]
