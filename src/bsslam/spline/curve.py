@@ -110,15 +110,28 @@ class BSplineCurve:
 
     __call__ = evaluate
 
-    def length(self, *, n_gauss: int = 10) -> float:
-        """Arc length over the domain (m): ``n_gauss``-point Gauss–Legendre on every span."""
-        nodes, weights = np.polynomial.legendre.leggauss(n_gauss)
+    def length(self, *, rtol: float = 1e-10) -> float:
+        """Arc length over the domain (m).
+
+        Composite 10-point Gauss–Legendre on every span, halving the sub-intervals until
+        two successive estimates agree to ``rtol``: the speed |s'| is smooth on a span but
+        can vary sharply where the curve turns tightly, so a fixed rule is not enough.
+        """
+        nodes, weights = np.polynomial.legendre.leggauss(10)
         breaks = self.pieces.breaks
-        half = 0.5 * np.diff(breaks)
-        mid = 0.5 * (breaks[:-1] + breaks[1:])
-        t = (mid[:, None] + half[:, None] * nodes[None, :]).ravel()
-        speed = np.linalg.norm(self.pieces.evaluate(t, 1)[1], axis=1).reshape(half.shape[0], n_gauss)
-        return float(np.sum(half * (speed @ weights)))
+        previous = np.nan
+        for level in range(12):
+            edges = np.interp(np.arange((breaks.shape[0] - 1) * 2**level + 1) / 2**level,
+                              np.arange(breaks.shape[0]), breaks)
+            half = 0.5 * np.diff(edges)
+            mid = 0.5 * (edges[:-1] + edges[1:])
+            t = (mid[:, None] + half[:, None] * nodes).ravel()
+            speed = np.linalg.norm(self.pieces.evaluate(t, 1)[1], axis=1).reshape(half.shape[0], -1)
+            estimate = float(np.sum(half * (speed @ weights)))
+            if abs(estimate - previous) <= rtol * estimate:
+                break
+            previous = estimate
+        return estimate
 
     def bbox(self) -> np.ndarray:
         """(4,) ``xmin, ymin, xmax, ymax`` of the control polygon (m); contains the curve."""

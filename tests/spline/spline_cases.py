@@ -1,0 +1,59 @@
+"""Hypothesis strategies and small builders shared by the spline tests."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import strategies as st
+
+from bsslam.spline import BSplineCurve
+
+_GAP = st.floats(0.05, 3.0)
+
+
+@st.composite
+def knot_vectors(draw, clamped: bool | None = None, min_degree: int = 1, max_degree: int = 4):
+    """(degree, knots): random valid knot vectors of degree 1…4.
+
+    Distinct break points are at least 0.05 m apart, interior knots are repeated 1…degree
+    times, and unclamped ends get degree extra knots (possibly repeated) outside the domain.
+    """
+    degree = draw(st.integers(min_degree, max_degree))
+    n_spans = draw(st.integers(1, 6))
+    start = draw(st.floats(-10.0, 10.0))
+    breaks = start + np.concatenate([[0.0], np.cumsum(draw(st.lists(_GAP, min_size=n_spans, max_size=n_spans)))])
+    mults = draw(st.lists(st.integers(1, degree), min_size=n_spans - 1, max_size=n_spans - 1))
+    interior = np.repeat(breaks[1:-1], mults)
+    if clamped is None:
+        clamped = draw(st.booleans())
+    if clamped:
+        left = np.full(degree, breaks[0])
+        right = np.full(degree, breaks[-1])
+    else:
+        outer = st.lists(st.one_of(st.just(0.0), _GAP), min_size=degree, max_size=degree)
+        left = breaks[0] - np.cumsum(draw(outer))[::-1]
+        right = breaks[-1] + np.cumsum(draw(outer))
+    knots = np.concatenate([left, [breaks[0]], interior, [breaks[-1]], right])
+    return degree, knots
+
+
+@st.composite
+def curves(draw, clamped: bool | None = None, min_degree: int = 1, max_degree: int = 4):
+    """Random BSplineCurve with control points in a 10 m box."""
+    degree, knots = draw(knot_vectors(clamped=clamped, min_degree=min_degree, max_degree=max_degree))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    control = rng.uniform(-5.0, 5.0, size=(len(knots) - degree - 1, 2))
+    return BSplineCurve(control, knots, degree)
+
+
+def domain_samples(knots: np.ndarray, degree: int, rng: np.random.Generator, m: int = 40) -> np.ndarray:
+    """Random parameters in the domain plus its ends and every knot inside it."""
+    lo, hi = knots[degree], knots[-degree - 1]
+    inside = knots[(knots >= lo) & (knots <= hi)]
+    return np.concatenate([rng.uniform(lo, hi, m), [lo, hi], inside])
+
+
+def wavy_wall(n: int, rng: np.random.Generator, noise_m: float = 0.0) -> np.ndarray:
+    """(n, 2) ordered points along a gently curved 8 m wall, optional Gaussian noise."""
+    x = np.linspace(0.0, 8.0, n)
+    pts = np.column_stack([x, 1.0 + 0.4 * np.sin(0.9 * x)])
+    return pts + rng.normal(0.0, noise_m, pts.shape) if noise_m else pts

@@ -1,0 +1,108 @@
+"""Least-squares fitting against scipy's make_lsq_spline, Φ, and Schoenberg–Whitney."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.interpolate import BSpline, make_lsq_spline
+from spline_cases import wavy_wall
+
+from bsslam.errors import FitError, SplineError
+from bsslam.spline import BSplineCurve, chord_length_parameters, clamped_knots, collocation_matrix, fit_curve
+
+SETTINGS = settings(max_examples=40, deadline=None)
+
+
+def test_chord_length_parameters():
+    pts = np.array([[0.0, 0.0], [3.0, 4.0], [3.0, 4.0], [3.0, 5.0]])
+    np.testing.assert_allclose(chord_length_parameters(pts, start=2.0), [2.0, 7.0, 7.0, 8.0])
+
+
+@SETTINGS
+@given(
+    degree=st.integers(1, 4),
+    n=st.integers(12, 200),
+    spacing=st.floats(0.3, 5.0),
+    noise=st.sampled_from([0.0, 0.01]),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_fit_equals_make_lsq_spline_and_phi_maps_data_to_control_points(degree, n, spacing, noise, seed):
+    pts = wavy_wall(n, np.random.default_rng(seed), noise)
+    result = fit_curve(pts, degree, spacing)
+    curve = result.curve
+    np.testing.assert_allclose(result.params, chord_length_parameters(pts))
+    # Same knots as asked for, unless Schoenberg–Whitney forced fewer spans.
+    wanted = clamped_knots(result.params[-1], spacing, degree)
+    assert curve.n_control <= len(wanted) - degree - 1
+    if curve.n_control == len(wanted) - degree - 1:
+        np.testing.assert_allclose(curve.knots, wanted, rtol=0, atol=1e-12)
+    ref = make_lsq_spline(result.params, pts, curve.knots, degree)
+    np.testing.assert_allclose(curve.control_points, ref.c, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(result.phi @ pts, curve.control_points, rtol=0, atol=1e-12)
+    assert result.phi.shape == (curve.n_control, n)
+    # A clamped fit reproduces constants: the rows of Φ sum to one.
+    np.testing.assert_allclose(result.phi.sum(axis=1), 1.0, atol=1e-10)
+
+
+@pytest.mark.parametrize("degree", [1, 2, 3, 4])
+def test_data_from_a_spline_in_the_space_are_fitted_exactly(degree):
+    rng = np.random.default_rng(degree)
+    knots = clamped_knots(6.0, 1.5, degree, start=1.0)
+    truth = BSplineCurve(rng.uniform(-3, 3, (len(knots) - degree - 1, 2)), knots, degree)
+    params = np.linspace(1.0, 7.0, 50)
+    result = fit_curve(truth.evaluate(params), degree, 1.5, params=params)
+    np.testing.assert_allclose(result.curve.knots, knots, atol=1e-12)
+    np.testing.assert_allclose(result.curve.control_points, truth.control_points, atol=1e-10)
+
+
+@pytest.mark.parametrize("degree", [1, 2, 3, 4])
+def test_gap_in_the_data_reduces_the_number_of_spans(degree):
+    x = np.concatenate([np.linspace(0.0, 3.0, 30), np.linspace(7.0, 10.0, 30)])
+    pts = np.column_stack([x, 0.1 * x])
+    params = x.copy()  # the gap stays a gap in parameter space
+    result = fit_curve(pts, degree, 0.5, params=params)
+    spans = result.curve.n_control - degree
+    assert spans < 20
+    # Independent oracle: the chosen knot vector has a full-rank collocation matrix and one
+    # more span would make it rank deficient (the gap would hold a whole basis function).
+    for s, full_rank in ((spans, True), (spans + 1, False)):
+        knots = clamped_knots(10.0, 10.0 / s, degree)
+        rank = np.linalg.matrix_rank(collocation_matrix(knots, degree, params))
+        assert bool(rank == s + degree) is full_rank
+    ref = make_lsq_spline(params, pts, result.curve.knots, degree)
+    np.testing.assert_allclose(result.curve.control_points, ref.c, atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("points", "degree", "params", "match"),
+    [
+        (np.zeros((3, 2)) + [[0, 0], [1, 0], [2, 0]], 3, None, "at least 4 points"),
+        (np.ones((6, 2)), 2, None, "coincident"),
+        (np.array([[0.0, 0], [0, 0], [0, 0], [1, 0], [1, 0]]), 2, None, "Schoenberg"),
+    ],
+)
+def test_impossible_fits_raise_fit_error(points, degree, params, match):
+    with pytest.raises(FitError, match=match):
+        fit_curve(points, degree, 1.0, params=params)
+
+
+def test_malformed_input_raises_spline_error():
+    with pytest.raises(SplineError, match="non-decreasing"):
+        fit_curve(np.zeros((5, 2)), 1, 1.0, params=[0, 1, 3, 2, 4])
+    with pytest.raises(SplineError, match="shape"):
+        fit_curve(np.zeros((5, 3)), 1, 1.0)
+    with pytest.raises(SplineError, match="spacing"):
+        fit_curve(wavy_wall(10, np.random.default_rng(0)), 1, -1.0)
+
+
+def test_fitted_curve_passes_through_end_region_and_follows_the_wall():
+    rng = np.random.default_rng(7)
+    pts = wavy_wall(300, rng, noise_m=0.005)
+    curve = fit_curve(pts, 3, 1.0).curve
+    clean = wavy_wall(300, rng)
+    dense = BSpline(curve.knots, curve.control_points, 3)(np.linspace(*curve.domain, 5000))
+    # Every clean wall point lies within a few noise σ of the fitted curve.
+    gaps = np.min(np.linalg.norm(clean[:, None, :] - dense[None, :, :], axis=2), axis=1)
+    assert gaps.max() < 0.01
