@@ -1,0 +1,64 @@
+"""Trajectory text files: TUM (``stamp x y z qx qy qz qw``) and plain ``stamp x y θ``.
+
+TUM is what evo and most SLAM benchmarks read; a planar pose becomes z = 0 and a rotation
+about z, ``q = (0, 0, sin φ/2, cos φ/2)``. The reader also takes the four-column
+``stamp x y θ`` files (the ``*.gt.txt`` references), deciding by the column count of the
+first data line. Lines starting with ``#`` and blank lines are skipped.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bsslam.io.numeric_table import parse_numeric_table
+from bsslam.io.path_or_file import PathOrFile, describe, open_path_or_file
+from bsslam.trajectory import Trajectory, wrap_angle
+
+TUM_HEADER = "# stamp x y z qx qy qz qw"
+
+
+def _format_row(values: np.ndarray) -> str:
+    # repr() of a Python float is the shortest string that reads back to the same double,
+    # so files round-trip exactly without 17-digit noise.
+    return " ".join(map(repr, values.tolist()))
+
+
+def write_tum(target: PathOrFile, trajectory: Trajectory) -> None:
+    """Write ``trajectory`` as TUM lines ``stamp x y z qx qy qz qw`` (s, m, unit quaternion),
+    with z = 0 and the heading as a rotation about z. Covariances are not written (see
+    :mod:`bsslam.io.pose_covariance_file`)."""
+    poses = trajectory.poses
+    half = 0.5 * poses[:, 2]
+    zeros = np.zeros(len(trajectory))
+    table = np.column_stack([trajectory.stamps, poses[:, 0], poses[:, 1], zeros,
+                             zeros, zeros, np.sin(half), np.cos(half)])
+    with open_path_or_file(target, "w") as f:
+        f.write(TUM_HEADER + "\n")
+        for row in table:
+            f.write(_format_row(row) + "\n")
+
+
+def _yaw_from_quaternion(q: np.ndarray) -> np.ndarray:
+    """Heading (rad) of (N, 4) quaternions ``qx qy qz qw``: rotation about z, the standard
+    ZYX yaw, valid for any (also non-planar or unnormalised) quaternion."""
+    qx, qy, qz, qw = q.T
+    return np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+
+
+def read_trajectory(source: PathOrFile) -> Trajectory:
+    """Read a TUM (8 columns) or ``stamp x y θ`` (4 columns) trajectory file.
+
+    Returns:
+        Trajectory with stamps (N,) in s and poses (N, 3) (x m, y m, φ rad wrapped to (−π, π]).
+
+    Raises:
+        InputError: unreadable file, or a line with the wrong column count or a
+            non-numeric value (naming the file and the 1-based line).
+    """
+    with open_path_or_file(source) as f:
+        table = parse_numeric_table(f, describe(source), (8, 4))
+    if table.shape[1] == 8:
+        heading = _yaw_from_quaternion(table[:, 4:8])
+    else:
+        heading = wrap_angle(table[:, 3])
+    return Trajectory(table[:, 0], np.column_stack([table[:, 1], table[:, 2], heading]))
