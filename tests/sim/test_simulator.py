@@ -140,3 +140,18 @@ def test_full_run_is_the_double_loop_and_ends_at_the_start():
     np.testing.assert_allclose(gt[-1], gt[0], atol=1e-9)
     # Odometry drifts: with the paper's σ the dead-reckoned end is not the start.
     assert np.linalg.norm(data.odometry_poses[-1, :2] - gt[-1, :2]) > 1e-3
+
+
+def test_simulator_and_filter_share_one_motion_model():
+    """The simulator's vectorised increments and noise agree with the filter's per-pose
+    motion model, so a filter fed these odometry poses sees exactly the configured noise."""
+    from bsslam.slam.motion import compose, motion_noise, relative
+
+    motion = MotionNoiseConfig(b_phi_per_m_rad=0.05)
+    data = simulate(ROOM, SimConfig(motion=motion), seed=3, steps=80)
+    odo = data.odometry_poses
+    for k in (1, 17, 55, 79):
+        np.testing.assert_allclose(relative(odo[k - 1], odo[k]), data.odometry_increments[k], atol=1e-12)
+        np.testing.assert_allclose(compose(odo[k - 1], data.odometry_increments[k]), odo[k], atol=1e-12)
+        inc = data.true_increments[k]
+        np.testing.assert_allclose(np.sqrt(np.diag(motion_noise(inc, motion))), increment_sigma(motion, inc)[0])
