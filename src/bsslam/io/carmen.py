@@ -47,6 +47,7 @@ import numpy as np
 from bsslam.dataset import Frame, SkipCounter
 from bsslam.errors import InputError
 from bsslam.io.carmen_messages import LASER_PARSERS, LaserMessage, MalformedLine, parse_odom, parse_param
+from bsslam.io.input_issues import InputIssues
 from bsslam.io.no_return import detect_no_return_code, mark_no_return, no_return_threshold
 from bsslam.io.odometry_sync import OdometrySync
 from bsslam.io.reader_config import CARMEN_LASER_MESSAGES, ReaderConfig
@@ -124,7 +125,7 @@ class CarmenReader:
         self.strict = strict
         self.config = config or ReaderConfig()
         self.ground_truth = ground_truth
-        self.skipped = SkipCounter()
+        self._issues = InputIssues(self.path, strict)
         kinds, maxima = self._survey_head()
         self.laser_message = self.config.laser_message or next(
             (k for k in CARMEN_LASER_MESSAGES if k in kinds), None)
@@ -171,8 +172,13 @@ class CarmenReader:
                 break
         return set(maxima), maxima
 
+    @property
+    def skipped(self) -> SkipCounter:
+        """What the last pass skipped (counts and first locations)."""
+        return self._issues.skipped
+
     def __iter__(self) -> Iterator[Frame]:
-        self.skipped = SkipCounter()
+        self._issues = InputIssues(self.path, self.strict)
         state = _StreamState()
         for number, line in self._lines():
             fields = line.split()
@@ -187,36 +193,36 @@ class CarmenReader:
                 elif kind == "PARAM":
                     self._on_param(fields, number, state)
                 else:
-                    self.skipped.add(f"unused message type {kind}")
+                    self._issues.skip(f"unused message type {kind}")
             except MalformedLine as exc:
                 # only the last line can lack its newline: the log was cut while writing
                 reason = (f"malformed {kind} line ({exc.reason})" if line.endswith("\n")
                           else "truncated last line")
-                self._problem(reason, number, exc.detail)
+                self._issues.problem(reason, number, exc.detail)
         yield from self._release(state, final=True)
-        self._log_summary()
+        self._issues.log_summary(logger)
 
     def _on_laser(self, fields: list[str], number: int, state: _StreamState) -> Iterator[Frame]:
         kind = fields[0]
         if self.laser_message is None:
             self.laser_message = kind  # the head of the log had no laser message
         if kind != self.laser_message:
-            self.skipped.add(f"unused laser stream {kind}")
+            self._issues.skip(f"unused laser stream {kind}")
             return
         msg = LASER_PARSERS[kind](fields)
         if msg.ranges.size == 0:
-            self._problem("empty scan", number)
+            self._issues.problem("empty scan", number)
             return
-        if not self._stamp_advances(msg.stamp, state.last_scan_stamp, number, "scan"):
+        if not self._issues.stamp_advances(msg.stamp, state.last_scan_stamp, "scan", number):
             return
         state.last_scan_stamp = msg.stamp
         if not np.all(np.isfinite(msg.ranges)):
-            self._problem("NaN/inf ranges (kept as invalid beams)", number)
+            self._issues.problem("NaN/inf ranges (kept as invalid beams)", number)
         threshold = no_return_threshold(self.config, msg.max_range_m, self.no_return_code_m)
         try:
             scan = LaserScan(msg.stamp, msg.angles, mark_no_return(msg.ranges, threshold), threshold)
         except InputError as exc:
-            self._problem(f"malformed {kind} line (invalid beam geometry)", number, str(exc))
+            self._issues.problem(f"malformed {kind} line (invalid beam geometry)", number, str(exc))
             return
         offset = self._laser_offset(msg, state)
         if msg.robot_pose is not None:
@@ -229,10 +235,10 @@ class CarmenReader:
         if self.laser_message is not None and not self.laser_message.startswith("RAWLASER"):
             # the laser messages carry their own odometry pose; ODOM lines are not read
             # (intel-corrected.log has thousands of out-of-order ones)
-            self.skipped.add("unused message type ODOM")
+            self._issues.skip("unused message type ODOM")
             return
         stamp, pose = parse_odom(fields)
-        if not self._stamp_advances(stamp, state.last_odom_stamp, number, "ODOM"):
+        if not self._issues.stamp_advances(stamp, state.last_odom_stamp, "ODOM", number):
             return
         state.last_odom_stamp = stamp
         state.sync.add_odometry(stamp, pose)
@@ -252,7 +258,7 @@ class CarmenReader:
         for (number, scan, offset), pose, reason in state.sync.ready(final):
             if pose is None:
                 # expected at the edges of a log, so counted even in strict mode
-                self.skipped.add(reason, f"{self.path}:{number}")
+                self._issues.skip(reason, number)
             else:
                 yield Frame(scan.stamp, pose, scan, offset)
 
@@ -264,22 +270,3 @@ class CarmenReader:
         if msg.kind.startswith("ROBOTLASER") or np.max(np.abs(relative)) > _SAME_POSE_TOLERANCE:
             return relative
         return state.param_offset(msg.kind)
-
-    def _stamp_advances(self, stamp: float, last: float | None, number: int, what: str) -> bool:
-        if last is None or stamp > last:
-            return True
-        reason = "duplicate" if stamp == last else "backwards"
-        self._problem(f"{reason} {what} timestamp", number, f"{stamp!r} after {last!r}")
-        return False
-
-    def _problem(self, reason: str, number: int, detail: str = "") -> None:
-        if self.strict:
-            raise InputError(f"{reason}: {detail}" if detail else reason, self.path, number)
-        self.skipped.add(reason, f"{self.path}:{number}")
-
-    def _log_summary(self) -> None:
-        problems = {k: v for k, v in self.skipped.counts.items() if not k.startswith("unused")}
-        if problems:
-            logger.warning("%s: %s; first: %s", self.path,
-                           ", ".join(f"{v}× {k}" for k, v in problems.items()),
-                           "; ".join(self.skipped.examples[:3]))

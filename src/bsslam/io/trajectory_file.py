@@ -12,6 +12,7 @@ import numpy as np
 
 from bsslam.io.numeric_table import parse_numeric_table
 from bsslam.io.path_or_file import PathOrFile, describe, open_path_or_file
+from bsslam.io.quaternion import quaternion_from_yaw, yaw_from_quaternion
 from bsslam.trajectory import Trajectory, wrap_angle
 
 TUM_HEADER = "# stamp x y z qx qy qz qw"
@@ -28,21 +29,12 @@ def write_tum(target: PathOrFile, trajectory: Trajectory) -> None:
     with z = 0 and the heading as a rotation about z. Covariances are not written (see
     :mod:`bsslam.io.pose_covariance_file`)."""
     poses = trajectory.poses
-    half = 0.5 * poses[:, 2]
-    zeros = np.zeros(len(trajectory))
-    table = np.column_stack([trajectory.stamps, poses[:, 0], poses[:, 1], zeros,
-                             zeros, zeros, np.sin(half), np.cos(half)])
+    table = np.column_stack([trajectory.stamps, poses[:, 0], poses[:, 1], np.zeros(len(trajectory)),
+                             quaternion_from_yaw(poses[:, 2])])
     with open_path_or_file(target, "w") as f:
         f.write(TUM_HEADER + "\n")
         for row in table:
             f.write(_format_row(row) + "\n")
-
-
-def _yaw_from_quaternion(q: np.ndarray) -> np.ndarray:
-    """Heading (rad) of (N, 4) quaternions ``qx qy qz qw``: rotation about z, the standard
-    ZYX yaw, valid for any (also non-planar or unnormalised) quaternion."""
-    qx, qy, qz, qw = q.T
-    return np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
 
 
 def read_trajectory(source: PathOrFile) -> Trajectory:
@@ -58,7 +50,7 @@ def read_trajectory(source: PathOrFile) -> Trajectory:
     with open_path_or_file(source) as f:
         table = parse_numeric_table(f, describe(source), (8, 4))
     if table.shape[1] == 8:
-        heading = _yaw_from_quaternion(table[:, 4:8])
+        heading = yaw_from_quaternion(*table[:, 4:8].T)
     else:
         heading = wrap_angle(table[:, 3])
     return Trajectory(table[:, 0], np.column_stack([table[:, 1], table[:, 2], heading]))
