@@ -1,0 +1,94 @@
+"""All metrics of one estimated trajectory file against its references, as one flat dict
+(what ``bsslam evaluate`` prints)."""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bsslam.eval.association import associate, nearest_stamps
+from bsslam.eval.consistency import nees
+from bsslam.eval.relations import relations_error
+from bsslam.eval.trajectory_error import ate, rpe
+from bsslam.io.pose_covariance_file import read_pose_covariance_csv
+from bsslam.io.trajectory_file import read_trajectory
+from bsslam.trajectory import Trajectory
+
+logger = logging.getLogger(__name__)
+
+POSE_COVARIANCE_FILE = "pose_covariance.csv"
+# Covariance rows are written with the same stamps as the trajectory; allow only rounding.
+_COVARIANCE_STAMP_TOLERANCE_S = 1e-6
+
+
+def _nees_mean(est: Trajectory, ref: Trajectory, covariance_path: Path, max_dt: float,
+               offset: float) -> tuple[float, int]:
+    """Mean NEES of the estimate against an exact reference, with no alignment (the
+    reference shares the estimate's frame, as a simulation's ground truth does)."""
+    cov_stamps, covariances = read_pose_covariance_csv(covariance_path)
+    cov_idx = nearest_stamps(cov_stamps, est.stamps, _COVARIANCE_STAMP_TOLERANCE_S)
+    est_idx, ref_idx = associate(est, ref, max_dt, offset)
+    usable = cov_idx[est_idx] >= 0
+    est_idx, ref_idx = est_idx[usable], ref_idx[usable]
+    if len(est_idx) == 0:
+        return float("nan"), 0
+    errors = est.poses[est_idx] - ref.poses[ref_idx]
+    values = nees(errors, covariances[cov_idx[est_idx]])
+    return float(np.mean(values)), len(values)
+
+
+def evaluate_files(est_path: str | os.PathLike, ref_path: str | os.PathLike | None,
+                   relations_path: str | os.PathLike | None = None, offset: float = 0.0,
+                   max_dt: float = 0.05, *, relations_offset: float = 0.0, relations_max_dt: float = 0.001,
+                   reference_exact: bool = False, rpe_delta: int = 1) -> dict[str, Any]:
+    """Evaluate a trajectory file (TUM or ``t x y θ``).
+
+    Args:
+        est_path: the estimate.
+        ref_path: a reference trajectory file, or None to score relations only.
+        relations_path: an optional Kümmerle relations file.
+        offset: added to the estimate's stamps to match the reference's (s).
+        max_dt: largest time difference of a matched estimate/reference pair (s).
+        relations_offset: added to the estimate's stamps to match the relations' (s),
+            976052857.337 for the Intel logs shipped with the project.
+        relations_max_dt: largest time difference when matching a relation stamp (s).
+        reference_exact: the reference is exact ground truth in the estimate's frame (a
+            simulation). Then, if ``pose_covariance.csv`` sits next to the estimate, the
+            mean NEES of the matched poses is reported; never for approximate references
+            such as the GMapping poses, whose own error would count as filter error.
+        rpe_delta: RPE compares poses this many matches apart.
+
+    Returns:
+        dict with, when a reference is given: ``matched``, ``ate_m``, ``rpe_trans_m`` and
+        ``rpe_rot_deg`` (RMSE), ``rpe_trans_mean_m``, ``rpe_rot_mean_deg``; with relations:
+        ``relations_trans_mean_m``, ``relations_trans_std_m``, ``relations_rot_mean_deg``,
+        ``relations_rot_std_deg``, ``relations_used``, ``relations_total``; with NEES:
+        ``nees_mean`` and ``nees_count``.
+
+    Raises:
+        InputError: unreadable files or too few matched poses.
+    """
+    est = read_trajectory(est_path)
+    result: dict[str, Any] = {}
+    if ref_path is not None:
+        ref = read_trajectory(ref_path)
+        ate_m, matched, _ = ate(est, ref, max_dt, offset)
+        errors = rpe(est, ref, rpe_delta, max_dt, offset)
+        result.update(matched=matched, ate_m=ate_m, rpe_trans_m=errors.trans_rmse_m,
+                      rpe_rot_deg=errors.rot_rmse_deg, rpe_trans_mean_m=errors.trans_mean_m,
+                      rpe_rot_mean_deg=errors.rot_mean_deg)
+        covariance_path = Path(est_path).with_name(POSE_COVARIANCE_FILE)
+        if reference_exact and covariance_path.exists():
+            result["nees_mean"], result["nees_count"] = _nees_mean(est, ref, covariance_path, max_dt, offset)
+        elif reference_exact:
+            logger.info("no %s next to %s: NEES not computed", POSE_COVARIANCE_FILE, est_path)
+    if relations_path is not None:
+        rel = relations_error(est, relations_path, relations_offset, relations_max_dt)
+        result.update(relations_trans_mean_m=rel.trans_mean_m, relations_trans_std_m=rel.trans_std_m,
+                      relations_rot_mean_deg=rel.rot_mean_deg, relations_rot_std_deg=rel.rot_std_deg,
+                      relations_used=rel.used, relations_total=rel.total)
+    return result
