@@ -299,12 +299,12 @@ def _cast_polar_curve(
         hi = np.where(same_side, hi, phi)
         with np.errstate(divide="ignore", invalid="ignore"):
             newton = phi - val / slope
-        inside = np.isfinite(newton) & (newton > lo) & (newton < hi)
+        inside = np.isfinite(newton) & (newton >= lo) & (newton <= hi)
         nxt = np.where(inside, newton, 0.5 * (lo + hi))
         nxt = np.where(val == 0, phi, nxt)
-        step = np.max(np.abs(nxt - phi))
+        converged = np.all(np.abs(nxt - phi) <= 4 * np.spacing(np.abs(phi) + 1.0))
         phi = nxt
-        if step <= 1e-15 * max(1.0, abs(curve.phi_end_rad)):
+        if converged:
             break
     phi = np.clip(phi, curve.phi_start_rad, curve.phi_end_rad)
     t = along[beam_idx] + curve.radius(phi) * np.cos(phi - beta_b)
