@@ -169,8 +169,14 @@ def test_free_rays_clear_traversed_cells_but_not_the_hit():
     assert value(2.2, 0.04) == UNKNOWN  # behind the wall
 
 
-def test_grid_refuses_nothing_and_bad_arrays(tmp_path):
-    with pytest.raises(InputError, match="nothing"):
-        render_grid([])
+def test_empty_map_gives_an_unknown_grid_around_the_origin():
+    grid, origin = render_grid([], resolution_m=0.1, margin_m=1.0)
+    assert grid.shape == (20, 20) and np.all(grid == UNKNOWN)
+    assert origin == pytest.approx((-1.0, -1.0, 0.0))
+
+
+def test_grid_refuses_bad_arguments(tmp_path):
+    with pytest.raises(InputError, match="resolution"):
+        render_grid([np.zeros((2, 2))], resolution_m=0.0)
     with pytest.raises(InputError, match="uint8"):
         write_grid(tmp_path / "a.pgm", tmp_path / "a.yaml", np.zeros((2, 2)), (0, 0, 0), 0.1)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
 
 from bsslam.errors import InputError
 from bsslam.trajectory import wrap_angle
@@ -42,6 +41,10 @@ def chi2_band(dof: int, runs: int, probability: float = 0.95) -> tuple[float, fl
     """
     if dof < 1 or runs < 1 or not 0 < probability < 1:
         raise InputError(f"need dof ≥ 1, runs ≥ 1 and 0 < probability < 1, got {dof}, {runs}, {probability}")
+    # imported here: scipy.stats takes most of a second to load, which every CLI verb
+    # importing bsslam.eval would otherwise pay
+    from scipy import stats
+
     tail = 0.5 * (1.0 - probability)
     total = dof * runs
     return float(stats.chi2.ppf(tail, total) / runs), float(stats.chi2.ppf(1.0 - tail, total) / runs)

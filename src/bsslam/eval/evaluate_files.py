@@ -28,11 +28,15 @@ _COVARIANCE_STAMP_TOLERANCE_S = 1e-6
 def _nees_mean(est: Trajectory, ref: Trajectory, covariance_path: Path, max_dt: float,
                offset: float) -> tuple[float, int]:
     """Mean NEES of the estimate against an exact reference, with no alignment (the
-    reference shares the estimate's frame, as a simulation's ground truth does)."""
+    reference shares the estimate's frame, as a simulation's ground truth does). Poses
+    whose covariance is not positive definite are left out: the first pose of a run
+    defines the map frame and has zero covariance."""
     cov_stamps, covariances = read_pose_covariance_csv(covariance_path)
+    positive = np.all(np.linalg.eigvalsh(covariances) > 0, axis=1) if len(covariances) else np.zeros(0, bool)
     cov_idx = nearest_stamps(cov_stamps, est.stamps, _COVARIANCE_STAMP_TOLERANCE_S)
     est_idx, ref_idx = associate(est, ref, max_dt, offset)
     usable = cov_idx[est_idx] >= 0
+    usable[usable] = positive[cov_idx[est_idx[usable]]]
     est_idx, ref_idx = est_idx[usable], ref_idx[usable]
     if len(est_idx) == 0:
         return float("nan"), 0
@@ -43,20 +47,22 @@ def _nees_mean(est: Trajectory, ref: Trajectory, covariance_path: Path, max_dt: 
 
 def evaluate_files(est_path: str | os.PathLike, ref_path: str | os.PathLike | None,
                    relations_path: str | os.PathLike | None = None, offset: float = 0.0,
-                   max_dt: float = 0.05, *, relations_offset: float = 0.0, relations_max_dt: float = 0.001,
-                   reference_exact: bool = False, rpe_delta: int = 1) -> dict[str, Any]:
+                   max_dt: float = 0.05, *, relations_max_dt: float = 0.001, ref_offset: float = 0.0,
+                   exact_reference: bool = False, rpe_delta: int = 1) -> dict[str, Any]:
     """Evaluate a trajectory file (TUM or ``t x y θ``).
 
     Args:
         est_path: the estimate.
         ref_path: a reference trajectory file, or None to score relations only.
         relations_path: an optional Kümmerle relations file.
-        offset: added to the estimate's stamps to match the reference's (s).
-        max_dt: largest time difference of a matched estimate/reference pair (s).
-        relations_offset: added to the estimate's stamps to match the relations' (s),
+        offset: the relations' clock minus the estimate's (s): subtracted from the relation
+            stamps, i.e. added to the estimate's stamps when matching relations;
             976052857.337 for the Intel logs shipped with the project.
+        max_dt: largest time difference of a matched estimate/reference pair (s).
         relations_max_dt: largest time difference when matching a relation stamp (s).
-        reference_exact: the reference is exact ground truth in the estimate's frame (a
+        ref_offset: added to the estimate's stamps when matching the reference (s); the
+            shipped ``*.gt.txt`` files share the logs' clock, so 0.
+        exact_reference: the reference is exact ground truth in the estimate's frame (a
             simulation). Then, if ``pose_covariance.csv`` sits next to the estimate, the
             mean NEES of the matched poses is reported; never for approximate references
             such as the GMapping poses, whose own error would count as filter error.
@@ -76,18 +82,18 @@ def evaluate_files(est_path: str | os.PathLike, ref_path: str | os.PathLike | No
     result: dict[str, Any] = {}
     if ref_path is not None:
         ref = read_trajectory(ref_path)
-        ate_m, matched, _ = ate(est, ref, max_dt, offset)
-        errors = rpe(est, ref, rpe_delta, max_dt, offset)
+        ate_m, matched, _ = ate(est, ref, max_dt, ref_offset)
+        errors = rpe(est, ref, rpe_delta, max_dt, ref_offset)
         result.update(matched=matched, ate_m=ate_m, rpe_trans_m=errors.trans_rmse_m,
                       rpe_rot_deg=errors.rot_rmse_deg, rpe_trans_mean_m=errors.trans_mean_m,
                       rpe_rot_mean_deg=errors.rot_mean_deg)
         covariance_path = Path(est_path).with_name(POSE_COVARIANCE_FILE)
-        if reference_exact and covariance_path.exists():
-            result["nees_mean"], result["nees_count"] = _nees_mean(est, ref, covariance_path, max_dt, offset)
-        elif reference_exact:
+        if exact_reference and covariance_path.exists():
+            result["nees_mean"], result["nees_count"] = _nees_mean(est, ref, covariance_path, max_dt, ref_offset)
+        elif exact_reference:
             logger.info("no %s next to %s: NEES not computed", POSE_COVARIANCE_FILE, est_path)
     if relations_path is not None:
-        rel = relations_error(est, relations_path, relations_offset, relations_max_dt)
+        rel = relations_error(est, relations_path, offset, relations_max_dt)
         result.update(relations_trans_mean_m=rel.trans_mean_m, relations_trans_std_m=rel.trans_std_m,
                       relations_rot_mean_deg=rel.rot_mean_deg, relations_rot_std_deg=rel.rot_std_deg,
                       relations_used=rel.used, relations_total=rel.total)

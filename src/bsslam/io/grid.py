@@ -102,9 +102,10 @@ def render_grid(polylines: Sequence[np.ndarray], resolution_m: float = 0.05, mar
     Returns:
         grid: (H, W) uint8 with 0 occupied, 254 free, 205 unknown; row 0 = largest y.
         origin: (x m, y m, θ = 0 rad) of the lower-left corner of the lower-left cell.
+        With nothing to draw, an all-unknown grid of ±``margin_m`` around (0, 0).
 
     Raises:
-        InputError: non-positive resolution or nothing to draw.
+        InputError: non-positive resolution or negative margin.
     """
     if not resolution_m > 0 or not margin_m >= 0:
         raise InputError(f"resolution_m must be > 0 and margin_m ≥ 0, got {resolution_m}, {margin_m}")
@@ -112,7 +113,8 @@ def render_grid(polylines: Sequence[np.ndarray], resolution_m: float = 0.05, mar
     ray_starts, ray_ends, ray_hits = _ray_segments(free_rays or (), resolution_m)
     everything = np.concatenate([occ_starts, occ_ends, ray_starts, ray_hits])
     if len(everything) == 0:
-        raise InputError("nothing to render: no finite polyline or ray points")
+        # an empty map (e.g. a run too short to map anything) is still a valid, unknown grid
+        everything = np.zeros((1, 2))
 
     low = everything.min(axis=0) - margin_m
     high = everything.max(axis=0) + margin_m
