@@ -35,6 +35,7 @@ counted by type; comments and blank lines are ignored.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
@@ -154,10 +155,14 @@ class CarmenReader:
         finite range of each of its first scans (for the no-return code)."""
         maxima: dict[str, list[float]] = {}
         wanted = self.config.code_detection_scans
-        for number, line in self._lines():
-            fields = line.split()
-            parser = LASER_PARSERS.get(fields[0]) if fields else None
-            if parser is not None:
+        with contextlib.closing(self._lines()) as lines:
+            for number, line in lines:
+                if number > _SURVEY_MAX_LINES:
+                    break
+                fields = line.split()
+                parser = LASER_PARSERS.get(fields[0]) if fields else None
+                if parser is None:
+                    continue
                 seen = maxima.setdefault(fields[0], [])
                 try:
                     ranges = parser(fields).ranges
@@ -168,8 +173,6 @@ class CarmenReader:
                     seen.append(float(finite.max()))
                 if len(seen) >= wanted:
                     break
-            if number >= _SURVEY_MAX_LINES:
-                break
         return set(maxima), maxima
 
     @property
