@@ -18,9 +18,9 @@ class Frame:
     Attributes:
         stamp: time (s).
         odometry: (3,) dead-reckoning pose (x m, y m, φ rad) of the robot at ``stamp``.
-        scan: the laser scan, in the robot frame (any laser offset already applied to its
-            geometry by the reader: see ``laser_offset``).
-        laser_offset: (3,) pose of the laser in the robot frame (x m, y m, φ rad).
+        scan: the laser scan, its bearings in the *laser* frame.
+        laser_offset: (3,) pose of the laser in the robot frame (x m, y m, φ rad); the filter
+            applies it (zeros when the laser sits at the robot's origin).
     """
 
     stamp: float
