@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from hypothesis import strategies as st
 
-from bsslam.spline import BSplineCurve
+from bsslam.spline import BSplineCurve, fit_curve
 
 _GAP = st.floats(0.05, 3.0)
 
@@ -57,3 +57,28 @@ def wavy_wall(n: int, rng: np.random.Generator, noise_m: float = 0.0) -> np.ndar
     x = np.linspace(0.0, 8.0, n)
     pts = np.column_stack([x, 1.0 + 0.4 * np.sin(0.9 * x)])
     return pts + rng.normal(0.0, noise_m, pts.shape) if noise_m else pts
+
+
+@st.composite
+def wall_curves(draw, min_degree: int = 1, max_degree: int = 4):
+    """Curves like the filter's map features: a fitted, wobbly circular arc.
+
+    Radius 2…8 m, opening 0.5…5 rad (so U shapes that a ray can cross twice occur),
+    knot spacing 0.5…2 m, degree 1…4.
+    """
+    degree = draw(st.integers(min_degree, max_degree))
+    radius = draw(st.floats(2.0, 8.0))
+    opening = draw(st.floats(0.5, 5.0))
+    wobble = draw(st.floats(0.0, 0.1))
+    spacing = draw(st.floats(0.5, 2.0))
+    start = draw(st.floats(-np.pi, np.pi))
+    phi = start + np.linspace(0.0, opening, 400)
+    rho = radius * (1.0 + wobble * np.sin(5.0 * phi))
+    center = np.array(draw(st.tuples(st.floats(-3, 3), st.floats(-3, 3))))
+    return fit_curve(center + np.column_stack([rho * np.cos(phi), rho * np.sin(phi)]), degree, spacing).curve
+
+
+def dense_samples(curve: BSplineCurve, n: int = 200_001) -> tuple[np.ndarray, np.ndarray]:
+    """Brute-force reference: (n,) parameters and (n, 2) points evenly spaced in the domain."""
+    t = np.linspace(*curve.domain, n)
+    return t, curve.evaluate(t)

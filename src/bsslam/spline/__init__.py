@@ -5,8 +5,10 @@ Everything speaks in *degree* p (order κ = p + 1); points are (m, 2) arrays in 
 """
 
 from bsslam.spline.basis import basis_functions, collocation_matrix, find_span
+from bsslam.spline.closest import closest_point
 from bsslam.spline.curve import BSplineCurve
 from bsslam.spline.fit import FitResult, chord_length_parameters, fit_curve
+from bsslam.spline.intersect import RayHits, intersect_rays
 from bsslam.spline.knots import clamped_knots, knot_domain, n_control_points, uniform_knots
 from bsslam.spline.pieces import PolynomialPieces
 
@@ -14,12 +16,15 @@ __all__ = [
     "BSplineCurve",
     "FitResult",
     "PolynomialPieces",
+    "RayHits",
     "basis_functions",
     "chord_length_parameters",
     "clamped_knots",
+    "closest_point",
     "collocation_matrix",
     "find_span",
     "fit_curve",
+    "intersect_rays",
     "knot_domain",
     "n_control_points",
     "uniform_knots",

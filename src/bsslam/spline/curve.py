@@ -118,11 +118,9 @@ class BSplineCurve:
         can vary sharply where the curve turns tightly, so a fixed rule is not enough.
         """
         nodes, weights = np.polynomial.legendre.leggauss(10)
-        breaks = self.pieces.breaks
         previous = np.nan
         for level in range(12):
-            edges = np.interp(np.arange((breaks.shape[0] - 1) * 2**level + 1) / 2**level,
-                              np.arange(breaks.shape[0]), breaks)
+            edges = self.pieces.subdivide(2**level)
             half = 0.5 * np.diff(edges)
             mid = 0.5 * (edges[:-1] + edges[1:])
             t = (mid[:, None] + half[:, None] * nodes).ravel()

@@ -40,6 +40,22 @@ class PolynomialPieces:
         """(S,) parameter length of each piece (m)."""
         return np.diff(self.breaks)
 
+    def subdivide(self, counts: object) -> np.ndarray:
+        """Parameters cutting every piece into equal parts, ends included.
+
+        Args:
+            counts: parts per piece, an int or (S,) ints ≥ 1.
+
+        Returns:
+            (Σ counts + 1,) increasing parameters (m); every break is among them.
+        """
+        widths = self.widths
+        counts = np.broadcast_to(np.asarray(counts, dtype=np.intp), widths.shape)
+        piece = np.repeat(np.arange(widths.shape[0]), counts)
+        part = np.arange(piece.shape[0]) - np.repeat(np.cumsum(counts) - counts, counts)
+        t = self.breaks[piece] + widths[piece] * (part / counts[piece])
+        return np.append(t, self.breaks[-1])
+
     def locate(self, t: object) -> tuple[np.ndarray, np.ndarray]:
         """Piece index (m,) and local parameter ``u = t − b_piece`` (m,) of parameters ``t``.
 

@@ -1,0 +1,274 @@
+"""Where laser beams hit a spline curve: the predicted ranges of the observation model (spec §6).
+
+In the frame of a beam (origin at the sensor, x̃ along the beam) the curve is
+``(x̃(t), ỹ(t))`` with ``x̃ = cos μ (x − o_x) + sin μ (y − o_y)``,
+``ỹ = −sin μ (x − o_x) + cos μ (y − o_y)``; the beam hits where ``ỹ(t) = 0`` and
+``x̃(t) > 0``, at range ``x̃(t)``. By affine invariance the rotated control points are the
+control points of the rotated curve, which gives the convex-hull test used below.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bsslam.errors import SplineError
+from bsslam.spline.basis import as_parameters
+from bsslam.spline.curve import BSplineCurve
+
+_MAX_NEWTON = 12
+_MAX_REFINE = 60
+# A root is accepted when |ỹ| is below this (m): far above rounding for coordinates of a
+# few kilometres, far below any laser's resolution.
+_ROOT_TOLERANCE_M = 1e-9
+
+
+@dataclass(frozen=True, eq=False)
+class RayHits:
+    """Intersections of m rays with one curve.
+
+    Attributes:
+        t: (m,) curve parameter of the hit (m); NaN where no hit.
+        range: (m,) distance from the ray origin to the hit along the ray (m); NaN where no hit.
+        r: (m,) tangent ratio ``x̃'(t)/ỹ'(t)`` in the beam frame (spec §6); NaN where no hit,
+            ±inf for a tangent (grazing) hit.
+        hit: (m,) bool, whether the ray hits the curve within the maximum range.
+    """
+
+    t: np.ndarray
+    range: np.ndarray
+    r: np.ndarray
+    hit: np.ndarray
+
+
+def intersect_rays(
+    curve: BSplineCurve,
+    origins: object,
+    angles: object,
+    t0: object = None,
+    max_range: float = np.inf,
+    *,
+    samples_per_span: int = 8,
+) -> RayHits:
+    """Nearest intersection of each ray with the curve.
+
+    With ``t0``: Newton ``t ← t − ỹ/ỹ'`` from the guess, clamped to the domain; it is
+    accepted when it converges to a root with ``0 < x̃ ≤ max_range`` (not necessarily the
+    nearest one: the guess, from data association, is trusted). Rays where it fails, and
+    all rays without ``t0``, go to the global search: spans whose rotated control values ỹ_i
+    all share a sign cannot hold a root (convex hull) and are skipped, as are spans entirely
+    behind the sensor or beyond ``max_range``; the others are sampled ``samples_per_span``
+    times, every sign change is refined by Newton safeguarded with bisection, and the
+    nearest root with ``x̃ > 0`` wins. Two roots closer together along the curve than the
+    sampling step (a nearly tangent ray) can be missed.
+
+    Args:
+        curve: the spline (world frame).
+        origins: (2,) or (m, 2) ray origins, world frame (m).
+        angles: (m,) ray directions μ, world frame (rad).
+        t0: optional (m,) parameter guesses (m); NaN entries mean "no guess".
+        max_range: hits farther than this (m) count as misses.
+        samples_per_span: samples per knot span in the global search (≥ 2).
+
+    Returns:
+        RayHits with (m,) arrays.
+    """
+    mu = as_parameters(angles)
+    m = mu.shape[0]
+    origin = np.asarray(origins, dtype=float)
+    if origin.shape == (2,):
+        origin = np.broadcast_to(origin, (m, 2))
+    elif origin.shape != (m, 2):
+        raise SplineError(f"origins must have shape (2,) or ({m}, 2), got {origin.shape}")
+    if samples_per_span < 2:
+        raise SplineError(f"samples_per_span must be ≥ 2, got {samples_per_span}")
+    cos_mu, sin_mu = np.cos(mu), np.sin(mu)
+    beams = _Beams(origin[:, 0], origin[:, 1], cos_mu, sin_mu)
+
+    t = np.full(m, np.nan)
+    rng = np.full(m, np.nan)
+    slope_x = np.full(m, np.nan)  # x̃'(t) at the hit
+    slope_y = np.full(m, np.nan)  # ỹ'(t) at the hit
+    todo = np.ones(m, dtype=bool)
+    if t0 is not None:
+        guess = as_parameters(t0)
+        if guess.shape != (m,):
+            raise SplineError(f"t0 must have shape ({m},), got {guess.shape}")
+        rays = np.flatnonzero(np.isfinite(guess))
+        found = _newton_from_guess(curve, beams.take(rays), guess[rays], max_range)
+        ok = rays[found.ok]
+        t[ok], rng[ok], slope_x[ok], slope_y[ok] = (a[found.ok] for a in found.values)
+        todo[ok] = False
+    rays = np.flatnonzero(todo)
+    if rays.size:
+        found = _global_search(curve, beams.take(rays), max_range, samples_per_span)
+        ok = rays[found.ok]
+        t[ok], rng[ok], slope_x[ok], slope_y[ok] = (a[found.ok] for a in found.values)
+    hit = np.isfinite(rng)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = slope_x / slope_y
+    return RayHits(t=t, range=rng, r=r, hit=hit)
+
+
+@dataclass(frozen=True)
+class _Beams:
+    """Origins and direction cosines of a set of rays, each (k,)."""
+
+    ox: np.ndarray
+    oy: np.ndarray
+    cos: np.ndarray
+    sin: np.ndarray
+
+    def take(self, index: np.ndarray) -> _Beams:
+        return _Beams(self.ox[index], self.oy[index], self.cos[index], self.sin[index])
+
+    def rotate(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World points (broadcast against (k,) or (k, 1)) to beam-frame (x̃, ỹ)."""
+        dx, dy = x - self.ox, y - self.oy
+        return self.cos * dx + self.sin * dy, self.cos * dy - self.sin * dx
+
+
+@dataclass(frozen=True)
+class _Found:
+    """Per-ray outcome of one search: ok (k,) bool; values = (t, range, x̃', ỹ'), each (k,)."""
+
+    ok: np.ndarray
+    values: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def _newton_from_guess(curve: BSplineCurve, beams: _Beams, t: np.ndarray, max_range: float) -> _Found:
+    pieces = curve.pieces
+    lo, hi = pieces.breaks[0], pieces.breaks[-1]
+    t = np.clip(t, lo, hi)
+    active = np.arange(t.shape[0])
+    for _ in range(_MAX_NEWTON):
+        # Only rays still moving are evaluated: most converge in three or four steps.
+        sub = beams.take(active)
+        s, ds = pieces.evaluate(t[active], 1)
+        _, yt = sub.rotate(s[:, 0], s[:, 1])
+        dyt = sub.cos * ds[:, 1] - sub.sin * ds[:, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_new = np.clip(t[active] - yt / dyt, lo, hi)
+        moving = np.isfinite(t_new) & (np.abs(yt) > 0.1 * _ROOT_TOLERANCE_M) & (t_new != t[active])
+        t[active] = np.where(np.isfinite(t_new), t_new, t[active])
+        active = active[moving]
+        if active.size == 0:
+            break
+    s, ds = pieces.evaluate(t, 1)
+    xt, yt = beams.rotate(s[:, 0], s[:, 1])
+    dxt = beams.cos * ds[:, 0] + beams.sin * ds[:, 1]
+    dyt = beams.cos * ds[:, 1] - beams.sin * ds[:, 0]
+    ok = (np.abs(yt) <= _ROOT_TOLERANCE_M) & (xt > 0) & (xt <= max_range)
+    return _Found(ok, (t, xt, dxt, dyt))
+
+
+def _global_search(curve: BSplineCurve, beams: _Beams, max_range: float, samples_per_span: int) -> _Found:
+    pieces = curve.pieces
+    k = beams.ox.shape[0]
+    degree = pieces.degree
+    # Convex-hull culling with the rotated control points of every span: (k, S, degree+1).
+    window = pieces.spans[:, None] - degree + np.arange(degree + 1)
+    cp = curve.control_points
+    xc, yc = _rotate_rows(beams, cp)
+    yw = yc[:, window]
+    xw = xc[:, window]
+    straddles = (yw.min(axis=2) <= 0) & (yw.max(axis=2) >= 0)
+    reachable = (xw.max(axis=2) > 0) & (xw.min(axis=2) <= max_range)
+    ray, piece = np.nonzero(straddles & reachable)
+
+    # Beam-frame polynomial of each candidate (ray, span) pair, ascending powers of u.
+    coeffs = pieces.coeffs[piece]  # (K, degree+1, 2)
+    c, s = beams.cos[ray, None], beams.sin[ray, None]
+    cx = c * coeffs[:, :, 0] + s * coeffs[:, :, 1]
+    cy = c * coeffs[:, :, 1] - s * coeffs[:, :, 0]
+    cx[:, 0] -= beams.cos[ray] * beams.ox[ray] + beams.sin[ray] * beams.oy[ray]
+    cy[:, 0] -= beams.cos[ray] * beams.oy[ray] - beams.sin[ray] * beams.ox[ray]
+
+    width = pieces.widths[piece]
+    u = width[:, None] * np.linspace(0.0, 1.0, samples_per_span + 1)  # (K, samples+1)
+    y = _horner(cy, u)
+    positive = y > 0
+    pair, j = np.nonzero(positive[:, :-1] != positive[:, 1:])
+    zero_pair, zero_j = np.nonzero(y == 0)  # exact zeros are roots already
+    pair = np.concatenate([pair, zero_pair])
+    a = np.concatenate([u[pair[: j.size], j], u[zero_pair, zero_j]])
+    b = np.concatenate([u[pair[: j.size], j + 1], u[zero_pair, zero_j]])
+    root = _refine_brackets(cy[pair], a, b)
+
+    xt = _horner(cx[pair], root[:, None])[:, 0]
+    keep = (xt > 0) & (xt <= max_range)
+    pair, root, xt = pair[keep], root[keep], xt[keep]
+    owner = ray[pair]
+    # Nearest root of every ray: sort by (ray, range) and keep each ray's first.
+    order = np.lexsort((xt, owner))
+    _, first = np.unique(owner[order], return_index=True)
+    best = order[first]
+    rays = owner[best]
+
+    ok = np.zeros(k, dtype=bool)
+    ok[rays] = True
+    t = np.full(k, np.nan)
+    rng = np.full(k, np.nan)
+    dxt = np.full(k, np.nan)
+    dyt = np.full(k, np.nan)
+    best_pair = pair[best]
+    t[rays] = pieces.breaks[piece[best_pair]] + root[best]
+    rng[rays] = xt[best]
+    dxt[rays] = _horner_derivative(cx[best_pair], root[best])
+    dyt[rays] = _horner_derivative(cy[best_pair], root[best])
+    return _Found(ok, (t, rng, dxt, dyt))
+
+
+def _rotate_rows(beams: _Beams, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 2) world points in every beam frame: x̃, ỹ each (k, n)."""
+    dx = points[None, :, 0] - beams.ox[:, None]
+    dy = points[None, :, 1] - beams.oy[:, None]
+    c, s = beams.cos[:, None], beams.sin[:, None]
+    return c * dx + s * dy, c * dy - s * dx
+
+
+def _horner(coeffs: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Polynomials (K, degree+1) ascending, at points (K, L) -> (K, L)."""
+    out = np.broadcast_to(coeffs[:, -1:], u.shape).copy()
+    for i in range(coeffs.shape[1] - 2, -1, -1):
+        out *= u
+        out += coeffs[:, i : i + 1]
+    return out
+
+
+def _horner_derivative(coeffs: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """First derivative of polynomials (K, degree+1) ascending at points (K,) -> (K,)."""
+    powers = np.arange(1, coeffs.shape[1])
+    return _horner(coeffs[:, 1:] * powers, u[:, None])[:, 0]
+
+
+def _refine_brackets(coeffs: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """A root of each polynomial (B, degree+1) inside its bracket [a, b] (sign change).
+
+    Newton from the bracket's midpoint; a step that leaves the bracket is replaced by
+    bisection, and the bracket shrinks around the sign change every iteration, so the
+    iteration always converges.
+    """
+    fa_positive = _horner(coeffs, a[:, None])[:, 0] > 0
+    x = 0.5 * (a + b)
+    a, b = a.copy(), b.copy()
+    derivative = coeffs[:, 1:] * np.arange(1, coeffs.shape[1])
+    for _ in range(_MAX_REFINE):
+        f = _horner(coeffs, x[:, None])[:, 0]
+        fp = _horner(derivative, x[:, None])[:, 0]
+        same = (f > 0) == fa_positive
+        a = np.where(same, x, a)
+        b = np.where(same, b, x)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            newton = x - f / fp
+        inside = (newton > a) & (newton < b)
+        x_new = np.where(inside, newton, 0.5 * (a + b))
+        # A root found stays put (a bisection step from it would leave it).
+        at_root = np.abs(f) <= 0.1 * _ROOT_TOLERANCE_M
+        x_new = np.where(at_root, x, x_new)
+        converged = at_root | (x_new == x)
+        x = x_new
+        if np.all(converged):
+            break
+    return x
