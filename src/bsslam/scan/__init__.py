@@ -1,0 +1,28 @@
+"""Scans and their segmentation into observed splines (spec §3, paper §III-A).
+
+Imports numpy, bsslam.spline and the configuration only.
+"""
+
+from bsslam.scan.laser_scan import LaserScan
+from bsslam.scan.observed import ObservedSpline, ScanFeatures, extract_splines
+from bsslam.scan.segment import (
+    DEFAULT_WINDOW_M,
+    INVALID_REASONS,
+    beams_to_points,
+    segment_points,
+    segment_points_counted,
+    valid_beams,
+)
+
+__all__ = [
+    "DEFAULT_WINDOW_M",
+    "INVALID_REASONS",
+    "LaserScan",
+    "ObservedSpline",
+    "ScanFeatures",
+    "beams_to_points",
+    "extract_splines",
+    "segment_points",
+    "segment_points_counted",
+    "valid_beams",
+]

@@ -1,0 +1,83 @@
+"""Observed splines: the B-splines fitted to one scan's segments, with the map from each
+beam to its spline parameter that the filter's observation model needs (spec §3, §6)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bsslam.config import SLAMConfig
+from bsslam.errors import FitError
+from bsslam.scan.laser_scan import LaserScan
+from bsslam.scan.segment import beams_to_points, segment_points_counted, valid_beams
+from bsslam.spline import BSplineCurve, fit_curve
+
+
+@dataclass(frozen=True, eq=False)
+class ObservedSpline:
+    """A spline fitted to one segment of a scan, in the robot (sensor) frame.
+
+    Attributes:
+        curve: the fitted clamped curve, of degree ``config.spline.degree`` (order = degree + 1).
+        phi: (n_control, k) least-squares map Φ: ``curve.control_points == phi @ points``.
+        beam_indices: (k,) int indices of the segment's beams into the scan's arrays, increasing.
+        params: (k,) chord-length parameter of each beam's point on ``curve`` (m).
+        points: (k, 2) the beams' end points (m).
+        ranges: (k,) the beams' ranges (m).
+        angles: (k,) the beams' bearings (rad).
+    """
+
+    curve: BSplineCurve
+    phi: np.ndarray
+    beam_indices: np.ndarray
+    params: np.ndarray
+    points: np.ndarray
+    ranges: np.ndarray
+    angles: np.ndarray
+
+
+@dataclass(frozen=True)
+class ScanFeatures:
+    """What :func:`extract_splines` found in a scan.
+
+    Attributes:
+        splines: observed splines in beam order.
+        counts: ``beams``, ``valid``, invalid beams by reason (``nonfinite``, ``no_return``,
+            ``too_close``), ``gap_cuts``, ``shape_cuts``, ``segments`` (kept by the
+            segmenter), ``rejected_segments`` (too few points or too short),
+            ``fit_failed`` (segments no spline could be fitted to) and ``splines``.
+    """
+
+    splines: list[ObservedSpline] = field(default_factory=list)
+    counts: dict[str, int] = field(default_factory=dict)
+
+
+def extract_splines(scan: LaserScan, config: SLAMConfig) -> ScanFeatures:
+    """Valid beams → points → segments → one least-squares spline per segment.
+
+    Each segment is fitted with ``fit_curve(points, config.spline.degree,
+    config.spline.knot_spacing_m)`` on its own chord-length parameterisation starting at
+    0. A segment that cannot be fitted (``FitError``) is counted, not raised.
+    """
+    mask, counts = valid_beams(scan, config.segmentation)
+    beam_indices = np.flatnonzero(mask)
+    angles = scan.angles[beam_indices]
+    ranges = scan.ranges[beam_indices]
+    points = beams_to_points(angles, ranges)
+    segments, segment_counts = segment_points_counted(points, config.segmentation, beam_index=beam_indices)
+    counts.update(segment_counts)
+    splines = []
+    fit_failed = 0
+    for rows in segments:  # a handful of segments per scan; the fit itself is vectorised
+        try:
+            fit = fit_curve(points[rows], config.spline.degree, config.spline.knot_spacing_m)
+        except FitError:
+            fit_failed += 1
+            continue
+        splines.append(ObservedSpline(curve=fit.curve, phi=fit.phi, beam_indices=beam_indices[rows],
+                                      params=fit.params, points=points[rows], ranges=ranges[rows],
+                                      angles=angles[rows]))
+    counts["fit_failed"] = fit_failed
+    counts["splines"] = len(splines)
+    return ScanFeatures(splines=splines, counts=counts)
