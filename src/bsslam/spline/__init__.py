@@ -7,6 +7,7 @@ Everything speaks in *degree* p (order κ = p + 1); points are (m, 2) arrays in 
 from bsslam.spline.basis import basis_functions, collocation_matrix, find_span
 from bsslam.spline.closest import closest_point
 from bsslam.spline.curve import BSplineCurve
+from bsslam.spline.extend import Extension, extend_curve, unclamp
 from bsslam.spline.fit import FitResult, chord_length_parameters, fit_curve
 from bsslam.spline.intersect import RayHits, intersect_rays
 from bsslam.spline.knots import clamped_knots, knot_domain, n_control_points, uniform_knots
@@ -14,6 +15,7 @@ from bsslam.spline.pieces import PolynomialPieces
 
 __all__ = [
     "BSplineCurve",
+    "Extension",
     "FitResult",
     "PolynomialPieces",
     "RayHits",
@@ -22,10 +24,12 @@ __all__ = [
     "clamped_knots",
     "closest_point",
     "collocation_matrix",
+    "extend_curve",
     "find_span",
     "fit_curve",
     "intersect_rays",
     "knot_domain",
     "n_control_points",
+    "unclamp",
     "uniform_knots",
 ]

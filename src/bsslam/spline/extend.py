@@ -1,0 +1,189 @@
+"""Growing a map spline past one of its ends (spec §8.2, paper (47)–(55)).
+
+First the end is *unclamped* (Piegl & Tiller, *The NURBS Book*, A12.1): its repeated knots
+are replaced by new ones beyond the domain and the last degree − 1 control points change by
+a linear map T so that the curve on the old domain stays exactly the same. Then new spans
+and control points are appended, and only the new control points are fitted to the new
+data, the old ones being held: ``x_new = G (D − B_old T x_old)``. The whole result is one
+constant linear map Ψ of ``[x_old; D]``, which the filter uses to grow the covariance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bsslam.errors import FitError, SplineError
+from bsslam.spline.basis import collocation_matrix
+from bsslam.spline.curve import BSplineCurve, as_points
+from bsslam.spline.fit import least_squares_operator, satisfies_schoenberg_whitney
+from bsslam.spline.knots import check_degree, check_knots, span_count
+
+_SIDES = ("left", "right")
+
+
+def _check_side(side: str) -> None:
+    if side not in _SIDES:
+        raise SplineError(f"side must be 'left' or 'right', got {side!r}")
+
+
+def unclamp(
+    knots: object, control_points: object, degree: int, side: str, new_knots: object
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unclamp one end of a clamped spline without changing it on its domain (spec §8.2).
+
+    Args:
+        knots: (n_control + degree + 1,) knot vector, clamped (end knot repeated
+            degree + 1 times) at ``side``.
+        control_points: (n_control, 2) control points (m).
+        degree: polynomial degree p.
+        side: ``'right'`` or ``'left'``.
+        new_knots: (degree,) non-decreasing knots that replace the repeated ones: for
+            ``'right'`` the new ``knots[n_control + 1 …]``, all > the domain end; for
+            ``'left'`` the new ``knots[0 … degree − 1]``, all < the domain start (m).
+
+    Returns:
+        ``(knots', control_points', T)``: knots' (same length), control_points'
+        (n_control, 2) and T (n_control, n_control) with ``control_points' = T @
+        control_points``. T depends on the knots only; for degree 1 it is the identity.
+    """
+    p = check_degree(degree)
+    _check_side(side)
+    u = np.array(check_knots(knots, p), dtype=float)
+    cp = as_points(control_points, "control_points")
+    n = cp.shape[0] - 1  # index of the last control point, as in the book
+    if u.shape[0] != n + p + 2:
+        raise SplineError(f"{u.shape[0]} knots do not fit {n + 1} control points of degree {p}")
+    new = np.asarray(new_knots, dtype=float)
+    if new.shape != (p,) or not np.all(np.isfinite(new)) or np.any(np.diff(new) < 0):
+        raise SplineError(f"new_knots must be {p} finite non-decreasing values, got {new_knots!r}")
+    transform = np.eye(n + 1)
+    if side == "right":
+        end = u[n + 1]
+        if np.any(u[n + 1 :] != end):
+            raise SplineError("the right end is not clamped (last knot not repeated degree + 1 times)")
+        if not new[0] > end:
+            raise SplineError(f"new right knots must lie beyond the domain end {end}, got {new[0]}")
+        for i in range(p - 1):
+            u[n + i + 2] = new[i]
+            for j in range(i, -1, -1):
+                alpha = (u[n + 1] - u[n - j]) / (u[n - j + i + 2] - u[n - j])
+                transform[n - j] = (transform[n - j] - (1.0 - alpha) * transform[n - j - 1]) / alpha
+        u[n + p + 1] = new[p - 1]
+    else:
+        start = u[p]
+        if np.any(u[: p + 1] != start):
+            raise SplineError("the left end is not clamped (first knot not repeated degree + 1 times)")
+        if not new[-1] < start:
+            raise SplineError(f"new left knots must lie before the domain start {start}, got {new[-1]}")
+        for i in range(p - 1):
+            u[p - i - 1] = new[p - i - 1]
+            k = p - 1
+            for j in range(i, -1, -1):
+                alpha = (u[p] - u[k]) / (u[p + j + 1] - u[k])
+                transform[j] = (transform[j] - alpha * transform[j + 1]) / (1.0 - alpha)
+                k -= 1
+        u[0] = new[0]
+    return u, transform @ cp, transform
+
+
+@dataclass(frozen=True, eq=False)
+class Extension:
+    """A spline grown past one end.
+
+    Attributes:
+        curve: the extended curve, clamped at its new end.
+        psi: (n_control + n_added, n_control + k) Ψ: the new control points are
+            ``psi @ [old control points; new data points]`` (x and y alike). Columns: the
+            old control points, then the k data points; rows in the order of
+            ``curve.control_points`` (right: [old; new], left: [new; old]).
+        n_added: number of control points (and spans) added.
+        side: ``'right'`` or ``'left'``.
+        T: (n_control, n_control) the unclamping map of the old control points.
+    """
+
+    curve: BSplineCurve
+    psi: np.ndarray
+    n_added: int
+    side: str
+    T: np.ndarray
+
+
+def extended_knots(knots: np.ndarray, degree: int, side: str, end: float, spans: int) -> np.ndarray:
+    """Knot vector of a curve grown by ``spans`` uniform spans up to the new end ``end``.
+
+    The old end keeps one copy of its knot, the new spans are equal, and the new end is
+    clamped (repeated degree + 1 times). Length grows by ``spans``.
+    """
+    if side == "right":
+        old_end = knots[-degree - 1]
+        interior = old_end + (end - old_end) * (np.arange(1, spans) / spans)
+        return np.concatenate([knots[: -degree - 1], [old_end], interior, np.full(degree + 1, end)])
+    old_start = knots[degree]
+    interior = end + (old_start - end) * (np.arange(1, spans) / spans)
+    return np.concatenate([np.full(degree + 1, end), interior, [old_start], knots[degree + 1 :]])
+
+
+def extend_curve(curve: BSplineCurve, side: str, points: object, params: object, spacing_m: float) -> Extension:
+    """Append control points fitted to new data beyond one end (spec §8.2).
+
+    Args:
+        curve: the map spline, clamped at ``side``.
+        side: ``'right'`` (past the domain end) or ``'left'`` (before the start).
+        points: (k, 2) new data points (m).
+        params: (k,) their parameters, continuing the curve's arc length: all > the
+            domain end for ``'right'``, all < the domain start for ``'left'`` (m).
+        spacing_m: knot spacing ρ (m) for the new spans.
+
+    Returns:
+        Extension. The new domain end is the outermost parameter; the number of new
+        spans is ``ceil(extent / spacing_m)`` (≥ 1), reduced while Schoenberg–Whitney fails
+        for the new basis functions. The curve on the old domain is unchanged.
+
+    Raises:
+        FitError: no number of new spans gives a well-posed fit.
+        SplineError: malformed input (shapes, side, parameters not beyond the end).
+    """
+    _check_side(side)
+    p = curve.degree
+    pts = as_points(points)
+    t = np.asarray(params, dtype=float)
+    k = pts.shape[0]
+    if t.shape != (k,) or not np.all(np.isfinite(t)):
+        raise SplineError(f"params must be {k} finite values, got shape {t.shape}")
+    if k == 0:
+        raise FitError("no data points to extend the curve with")
+    lo, hi = curve.domain
+    if side == "right" and not np.all(t > hi):
+        raise SplineError(f"right extension parameters must all be > the domain end {hi}")
+    if side == "left" and not np.all(t < lo):
+        raise SplineError(f"left extension parameters must all be < the domain start {lo}")
+    end = float(t.max() if side == "right" else t.min())
+    extent = end - hi if side == "right" else lo - end
+    distinct = np.unique(t)
+    n_old = curve.n_control
+    most = min(span_count(extent, spacing_m), distinct.shape[0])
+    for spans in range(most, 0, -1):
+        knots = extended_knots(curve.knots, p, side, end, spans)
+        # The degree knots next to the old end, taken from the final vector, drive the
+        # unclamping, so the unclamped old part and the extended curve agree on it.
+        new_knots = knots[n_old + 1 : n_old + p + 1] if side == "right" else knots[spans : spans + p]
+        _, _, transform = unclamp(curve.knots, curve.control_points, p, side, new_knots)
+        new_cols = np.arange(n_old, n_old + spans) if side == "right" else np.arange(spans)
+        old_cols = np.arange(n_old) if side == "right" else np.arange(spans, spans + n_old)
+        if not satisfies_schoenberg_whitney(knots, p, distinct, slice(new_cols[0], new_cols[-1] + 1)):
+            continue
+        colloc = collocation_matrix(knots, p, t)
+        g = least_squares_operator(colloc[:, new_cols])
+        if g is None:
+            continue
+        psi = np.zeros((n_old + spans, n_old + k))
+        psi[old_cols, :n_old] = transform
+        psi[new_cols, :n_old] = -g @ colloc[:, old_cols] @ transform
+        psi[new_cols, n_old:] = g
+        control = psi @ np.concatenate([curve.control_points, pts])
+        return Extension(BSplineCurve.unchecked(control, knots, p), psi, spans, side, transform)
+    raise FitError(
+        f"no extension with 1..{max(most, 1)} new spans fits these {k} points "
+        "(Schoenberg–Whitney fails for the new control points)")
