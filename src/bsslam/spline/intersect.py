@@ -22,6 +22,8 @@ _MAX_REFINE = 60
 # A root is accepted when |ỹ| is below this (m): far above rounding for coordinates of a
 # few kilometres, far below any laser's resolution.
 _ROOT_TOLERANCE_M = 1e-9
+# Newton stops when its step is below this relative size (parameters are metres).
+_STEP_TOLERANCE = 1e-13
 
 
 @dataclass(frozen=True, eq=False)
@@ -150,8 +152,11 @@ def _newton_from_guess(curve: BSplineCurve, beams: _Beams, t: np.ndarray, max_ra
         dyt = sub.cos * ds[:, 1] - sub.sin * ds[:, 0]
         with np.errstate(divide="ignore", invalid="ignore"):
             t_new = np.clip(t[active] - yt / dyt, lo, hi)
-        moving = np.isfinite(t_new) & (np.abs(yt) > 0.1 * _ROOT_TOLERANCE_M) & (t_new != t[active])
-        t[active] = np.where(np.isfinite(t_new), t_new, t[active])
+        finite = np.isfinite(t_new)
+        # Iterate to full precision, not just to the acceptance tolerance: the filter's
+        # Jacobians are checked by finite differences of these ranges.
+        moving = finite & (np.abs(t_new - t[active]) > _STEP_TOLERANCE * (1.0 + np.abs(t_new)))
+        t[active] = np.where(finite, t_new, t[active])
         active = active[moving]
         if active.size == 0:
             break
@@ -261,11 +266,12 @@ def _refine_brackets(coeffs: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.nda
         a = np.where(same, x, a)
         b = np.where(same, b, x)
         with np.errstate(divide="ignore", invalid="ignore"):
-            newton = x - f / fp
+            step = f / fp
+        newton = x - step
         inside = (newton > a) & (newton < b)
         x_new = np.where(inside, newton, 0.5 * (a + b))
-        # A root found stays put (a bisection step from it would leave it).
-        at_root = np.abs(f) <= 0.1 * _ROOT_TOLERANCE_M
+        # Converged to rounding: stay (a bisection step from a root would leave it).
+        at_root = (f == 0) | (np.abs(step) <= _STEP_TOLERANCE * (1.0 + np.abs(x)))
         x_new = np.where(at_root, x, x_new)
         converged = at_root | (x_new == x)
         x = x_new
