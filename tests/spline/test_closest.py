@@ -93,3 +93,12 @@ def test_empty_queries():
     curve = BSplineCurve(np.zeros((4, 2)) + np.arange(4)[:, None], clamped_knots(1.0, 1.0, 3), 3)
     t, points, distance = closest_point(curve, np.zeros((0, 2)))
     assert t.shape == (0,) and points.shape == (0, 2) and distance.shape == (0,)
+
+
+def test_nan_guesses_fall_back_to_the_global_search():
+    curve = BSplineCurve(np.column_stack([np.arange(5.0), np.arange(5.0) ** 2 / 4]), clamped_knots(4.0, 2.0, 3), 3)
+    queries = np.array([[1.0, 3.0], [3.5, 0.0], [0.0, -1.0]])
+    t_global, _, d_global = closest_point(curve, queries)
+    t_mixed, _, d_mixed = closest_point(curve, queries, t0=[np.nan, t_global[1] + 0.1, np.nan])
+    np.testing.assert_allclose(t_mixed, t_global, atol=1e-9)
+    np.testing.assert_allclose(d_mixed, d_global, atol=1e-12)

@@ -39,7 +39,7 @@ def closest_point(
     Args:
         curve: the spline.
         queries: (q, 2) query points (m).
-        t0: optional (q,) starting parameters (m).
+        t0: optional (q,) starting parameters (m); NaN entries mean "no guess".
         sample_step_m: largest arc length between coarse samples (m), when ``t0`` is None.
         samples_per_span: fewest coarse samples per knot span (≥ 2).
 
@@ -50,13 +50,16 @@ def closest_point(
     q = as_points(queries, "queries")
     pieces = curve.pieces
     lo, hi = pieces.breaks[0], pieces.breaks[-1]
-    if t0 is None:
-        t_start, owner = _starts_at_sampled_minima(curve, q, sample_step_m, samples_per_span)
-    else:
-        t_start = np.clip(as_parameters(t0), lo, hi)
-        if t_start.shape != (q.shape[0],):
-            raise SplineError(f"t0 must have shape ({q.shape[0]},), got {t_start.shape}")
-        owner = np.arange(q.shape[0])
+    guess = np.full(q.shape[0], np.nan) if t0 is None else as_parameters(t0)
+    if guess.shape != (q.shape[0],):
+        raise SplineError(f"t0 must have shape ({q.shape[0]},), got {guess.shape}")
+    given = np.flatnonzero(np.isfinite(guess))
+    unguessed = np.flatnonzero(~np.isfinite(guess))
+    t_start, owner = np.clip(guess[given], lo, hi), given
+    if unguessed.size:
+        t_sampled, owner_sampled = _starts_at_sampled_minima(curve, q[unguessed], sample_step_m, samples_per_span)
+        t_start = np.concatenate([t_start, t_sampled])
+        owner = np.concatenate([owner, unguessed[owner_sampled]])
     t, d2 = _newton(curve, q[owner], t_start)
     # Best candidate of each query: sort by (query, squared distance), keep the first.
     order = np.lexsort((d2, owner))
