@@ -11,7 +11,7 @@ from spline_cases import curves, dense_samples, wall_curves
 from bsslam.spline import BSplineCurve, clamped_knots
 from bsslam.spline.closest import closest_point
 
-SETTINGS = settings(max_examples=40, deadline=None)
+SETTINGS = settings(max_examples=25, deadline=None)
 
 
 def _brute_force(curve: BSplineCurve, queries: np.ndarray) -> np.ndarray:
