@@ -125,8 +125,12 @@ class _Beams:
     def take(self, index: np.ndarray) -> _Beams:
         return _Beams(self.ox[index], self.oy[index], self.cos[index], self.sin[index])
 
+    def column(self) -> _Beams:
+        """The same rays as (k, 1) arrays, to broadcast against a row of points."""
+        return _Beams(self.ox[:, None], self.oy[:, None], self.cos[:, None], self.sin[:, None])
+
     def rotate(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World points (broadcast against (k,) or (k, 1)) to beam-frame (x̃, ỹ)."""
+        """World coordinates to beam-frame (x̃, ỹ), broadcasting against the ray arrays."""
         dx, dy = x - self.ox, y - self.oy
         return self.cos * dx + self.sin * dy, self.cos * dy - self.sin * dx
 
@@ -175,7 +179,7 @@ def _global_search(curve: BSplineCurve, beams: _Beams, max_range: float, samples
     # Convex-hull culling with the rotated control points of every span: (k, S, degree+1).
     window = pieces.spans[:, None] - degree + np.arange(degree + 1)
     cp = curve.control_points
-    xc, yc = _rotate_rows(beams, cp)
+    xc, yc = beams.column().rotate(cp[:, 0], cp[:, 1])  # (k, n_control) each
     yw = yc[:, window]
     xw = xc[:, window]
     straddles = (yw.min(axis=2) <= 0) & (yw.max(axis=2) >= 0)
@@ -223,14 +227,6 @@ def _global_search(curve: BSplineCurve, beams: _Beams, max_range: float, samples
     dxt[rays] = _horner_derivative(cx[best_pair], root[best])
     dyt[rays] = _horner_derivative(cy[best_pair], root[best])
     return _Found(ok, (t, rng, dxt, dyt))
-
-
-def _rotate_rows(beams: _Beams, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(n, 2) world points in every beam frame: x̃, ỹ each (k, n)."""
-    dx = points[None, :, 0] - beams.ox[:, None]
-    dy = points[None, :, 1] - beams.oy[:, None]
-    c, s = beams.cos[:, None], beams.sin[:, None]
-    return c * dx + s * dy, c * dy - s * dx
 
 
 def _horner(coeffs: np.ndarray, u: np.ndarray) -> np.ndarray:
