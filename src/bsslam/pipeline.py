@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from bsslam.config import SLAMConfig
 from bsslam.dataset import Dataset, SkipCounter
@@ -76,6 +77,13 @@ def run_dataset(dataset: Dataset, config: SLAMConfig, *, steps: int | None = Non
         point_stride: keep every k-th valid beam of every scan for ``RunResult.points``.
         slam: an existing filter to continue (its state is not reset).
     """
+    # The per-scan matrices are small (hundreds of rows): BLAS threads only add overhead,
+    # and under load they make a 170×170 Cholesky 100× slower. One thread for the loop.
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _run(dataset, config, steps, progress, total, point_stride, slam)
+
+
+def _run(dataset, config, steps, progress, total, point_stride, slam) -> RunResult:
     stamps, poses, covs, odo, step_times, sizes, nis, dof = [], [], [], [], [], [], [], []
     points = []
     totals: dict[str, int] = {}
@@ -85,7 +93,7 @@ def run_dataset(dataset: Dataset, config: SLAMConfig, *, steps: int | None = Non
             break
         if slam is None:
             slam = SplineSLAM(config, initial_pose=frame.odometry)
-        delta = np.zeros(3) if prev_odo is None else relative(prev_odo, frame.odometry)
+        delta = None if prev_odo is None else relative(prev_odo, frame.odometry)
         prev_odo = frame.odometry
         t0 = time.perf_counter()
         report = slam.step(delta, frame.scan, frame.laser_offset)

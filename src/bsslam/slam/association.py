@@ -81,21 +81,23 @@ def match_pair(observed: BSplineCurve, mapped: BSplineCurve, feature_id: int,
     return Match(feature_id, u_ini, u_fin, t_ini, t_fin, at_lo=at_lo_ini, at_hi=at_hi_fin)
 
 
-def associate(observed: list[BSplineCurve], mapped: dict[int, BSplineCurve], gate_m: float,
-              match_distance_m: float) -> list[list[Match]]:
+def associate(observed: list[BSplineCurve], mapped: dict[int, BSplineCurve], gate_m,
+              match_distance_m) -> list[list[Match]]:
     """Match every observed spline against the candidate map splines.
 
     Args:
         observed: observed splines in the world frame.
         mapped: candidate map splines (already limited to the robot's surroundings) by id.
-        gate_m: δ_mincp, the cheap control-point gate (m).
-        match_distance_m: δ_match (m).
+        gate_m: δ_mincp, the cheap control-point gate (m): one value, or one per observed spline.
+        match_distance_m: δ_match (m): one value, or one per observed spline.
     Returns:
         for each observed spline, its matches sorted by ``u_ini``.
     """
     boxes = {fid: c.bbox() for fid, c in mapped.items()}
+    gates = np.broadcast_to(np.asarray(gate_m, dtype=float), (len(observed),))
+    deltas = np.broadcast_to(np.asarray(match_distance_m, dtype=float), (len(observed),))
     result: list[list[Match]] = []
-    for obs in observed:
+    for obs, gate_m, match_distance_m in zip(observed, gates, deltas):
         ob = obs.bbox()
         matches = []
         for fid, curve in mapped.items():

@@ -5,8 +5,8 @@ so everything is built from those columns (``cols``): ``P Hᵀ = P[:, cols] H_c�
 covariance correction ``P ← P − P Hᵀ S⁻¹ H P`` is applied as a symmetric low-rank update
 ``P ← P − Z Zᵀ`` with rank min(beams, touched columns): that product is the only O(n²)
 work of a scan. The Joseph form would cost O(n³) on the full state; instead the result is
-symmetrised and its pose block checked, which keeps P symmetric and positive definite in
-practice (every test run checks it).
+symmetrised and its pose block checked, which keeps P symmetric and positive definite
+(the tests check it on every simulated run).
 """
 
 from __future__ import annotations
@@ -21,6 +21,59 @@ from bsslam.errors import FilterError
 from bsslam.slam.state import JointState
 
 
+def gate_threshold(probability: float) -> float:
+    """χ² (1 dof) bound of the per-beam innovation gate."""
+    return float(chi2.ppf(probability, 1))
+
+
+def innovation_variances(P: np.ndarray, cols: np.ndarray, H_c: np.ndarray, range_variance: float) -> np.ndarray:
+    """(m,) diagonal of S = H P Hᵀ + R, for per-beam gating (m²)."""
+    HP = H_c @ P[np.ix_(cols, cols)]
+    return np.einsum("ij,ij->i", HP, H_c) + range_variance
+
+
+class StackedGain:
+    """``S = H P Hᵀ + R`` factorised once for a stacked linearisation, giving the mean
+    correction ``P Hᵀ S⁻¹ ν`` for any ν (the iterated EKF reuses it) and the covariance update.
+
+    Args:
+        P: (n, n) prior covariance.
+        cols: (c,) state indices that ``H`` touches.
+        H_c: (m, c) the Jacobian restricted to ``cols``.
+        range_variance: R of one beam (m²).
+    """
+
+    def __init__(self, P: np.ndarray, cols: np.ndarray, H_c: np.ndarray, range_variance: float):
+        self.cols = cols
+        self.P_c = P[:, cols]                    # (n, c): the only columns of P read
+        S = (H_c @ self.P_c[cols]) @ H_c.T
+        S[np.diag_indices_from(S)] += range_variance
+        self.S_diag = np.diag(S).copy()
+        try:
+            L, _ = cho_factor(S, lower=True, check_finite=False)
+        except np.linalg.LinAlgError as exc:  # pragma: no cover - S ≥ R > 0 in exact arithmetic
+            raise FilterError(f"innovation covariance not positive definite: {exc}") from None
+        self.L = np.tril(L)
+        self.Y = solve_triangular(self.L, H_c, lower=True, check_finite=False)   # Hᵀ S⁻¹ H = Yᵀ Y
+
+    def correction(self, innovation: np.ndarray) -> tuple[np.ndarray, float]:
+        """(dx (n,), NIS): the mean correction P Hᵀ S⁻¹ ν and ν S⁻¹ ν."""
+        w = solve_triangular(self.L, innovation, lower=True, check_finite=False)
+        return self.P_c @ (self.Y.T @ w), float(w @ w)
+
+    def update_covariance(self, state: JointState) -> None:
+        """P ← P − P Hᵀ S⁻¹ H P, as P − Z Zᵀ with the smaller of the two possible ranks."""
+        Y = self.Y
+        if Y.shape[0] > Y.shape[1]:
+            Y = qr(Y, mode="r", check_finite=False)[0]   # YᵀY = R_yᵀ R_y
+        Z = self.P_c @ Y.T
+        P = state.P
+        P -= Z @ Z.T
+        state.symmetrize()
+        if np.any(np.diag(P)[:3] <= 0):
+            raise FilterError("pose covariance lost positive definiteness in the update")
+
+
 @dataclass(frozen=True)
 class UpdateResult:
     """What one stacked update did.
@@ -29,7 +82,7 @@ class UpdateResult:
         innovation: (m,) ν = z − ẑ of the beams used (m).
         innovation_variance: (m,) diagonal of S (m²).
         nis: ν S⁻¹ ν of the stacked update (dimensionless), χ² with ``len(innovation)`` dof.
-        accepted: (m_in,) bool mask of the beams passed to the update that survived the gate.
+        accepted: (m_in,) bool mask of the beams passed in that survived the gate.
     """
 
     innovation: np.ndarray
@@ -38,14 +91,9 @@ class UpdateResult:
     accepted: np.ndarray
 
 
-def gate_threshold(probability: float) -> float:
-    """χ² (1 dof) bound of the per-beam innovation gate."""
-    return float(chi2.ppf(probability, 1))
-
-
 def stacked_update(state: JointState, cols: np.ndarray, H_c: np.ndarray, innovation: np.ndarray,
                    range_variance: float, gate: float | None = None) -> UpdateResult:
-    """Update ``state`` in place with m beams.
+    """One (non-iterated) EKF update of ``state`` in place with m beams.
 
     Args:
         cols: (c,) state indices that ``H`` touches (pose and control points).
@@ -54,33 +102,14 @@ def stacked_update(state: JointState, cols: np.ndarray, H_c: np.ndarray, innovat
         range_variance: R of one beam (m²).
         gate: χ² bound on ν_i²/S_ii per beam; None disables gating.
     """
-    m = innovation.shape[0]
-    P = state.P
-    P_c = P[:, cols]                      # (n, c): the only columns of P we read
-    HP_cc = H_c @ P_c[cols]               # (m, c)
-    s_diag = np.einsum("ij,ij->i", HP_cc, H_c) + range_variance
-    accepted = np.ones(m, dtype=bool)
+    accepted = np.ones(innovation.shape[0], dtype=bool)
     if gate is not None:
+        s_diag = innovation_variances(state.P, cols, H_c, range_variance)
         accepted = innovation * innovation <= gate * s_diag
     if not accepted.any():
         return UpdateResult(np.empty(0), np.empty(0), 0.0, accepted)
-    H_a, nu = H_c[accepted], innovation[accepted]
-    S = HP_cc[accepted] @ H_a.T
-    S[np.diag_indices_from(S)] += range_variance
-    try:
-        L, _ = cho_factor(S, lower=True, check_finite=False)
-    except np.linalg.LinAlgError as exc:  # pragma: no cover - S ≥ R > 0 in exact arithmetic
-        raise FilterError(f"innovation covariance not positive definite: {exc}") from None
-    L = np.tril(L)
-    Y = solve_triangular(L, H_a, lower=True, check_finite=False)    # (m, c): Hᵀ S⁻¹ H = Yᵀ Y
-    w = solve_triangular(L, nu, lower=True, check_finite=False)     # (m,):  ν S⁻¹ ν = w·w
-    state.x[:] += P_c @ (Y.T @ w)
-    # Factor Hᵀ S⁻¹ H with the smaller rank: YᵀY = R_yᵀ R_y when there are more beams than columns.
-    if Y.shape[0] > Y.shape[1]:
-        Y = qr(Y, mode="r", check_finite=False)[0]
-    Z = P_c @ Y.T
-    P -= Z @ Z.T
-    state.symmetrize()
-    if np.any(np.diag(P)[:3] <= 0):
-        raise FilterError("pose covariance lost positive definiteness in the update")
-    return UpdateResult(nu, np.diag(S).copy(), float(w @ w), accepted)
+    gain = StackedGain(state.P, cols, H_c[accepted], range_variance)
+    dx, nis = gain.correction(innovation[accepted])
+    state.x[:] += dx
+    gain.update_covariance(state)
+    return UpdateResult(innovation[accepted], gain.S_diag, nis, accepted)

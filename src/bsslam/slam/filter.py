@@ -15,13 +15,13 @@ from bsslam.config import SLAMConfig
 from bsslam.errors import FilterError, FitError, InputError
 from bsslam.scan import LaserScan, ObservedSpline, extract_splines
 from bsslam.slam.association import Match, associate
-from bsslam.slam.ekf import gate_threshold, stacked_update
+from bsslam.slam.ekf import StackedGain, gate_threshold, innovation_variances
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
 from bsslam.slam.features import MapSpline, SplineFeature
 from bsslam.slam.motion import motion_noise, predict
 from bsslam.slam.observation import laser_pose, predict_beams
 from bsslam.slam.state import JointState
-from bsslam.spline import extend_curve
+from bsslam.spline import closest_point, extend_curve, fit_curve
 from bsslam.trajectory import wrap_angle
 
 
@@ -60,6 +60,24 @@ class StepReport:
     def drop(self, reason: str, count: int) -> None:
         if count:
             self.beams_dropped[reason] = self.beams_dropped.get(reason, 0) + int(count)
+
+
+@dataclass(frozen=True)
+class _Linearization:
+    """Stacked ranges and Jacobian of the beams of one scan at one estimate.
+
+    Attributes:
+        cols: (c,) touched state indices; H_c: (m, c); residual: (m,) z − h(x);
+        owner: (m,) index of each row's beam group; row_in_group: (m,) its beam in the group;
+        hit_t: (m,) map-spline parameter of each hit.
+    """
+
+    cols: np.ndarray
+    H_c: np.ndarray
+    residual: np.ndarray
+    owner: np.ndarray
+    row_in_group: np.ndarray
+    hit_t: np.ndarray
 
 
 @dataclass
@@ -123,26 +141,29 @@ class SplineSLAM:
     @property
     def _range_variance(self) -> float:
         obs = self.config.observation
-        return obs.sigma_range_m ** 2 * obs.r_inflation
+        return (obs.sigma_range_m ** 2 + obs.sigma_model_m ** 2) * obs.r_inflation
 
     # -- the algorithm ------------------------------------------------------------------
     def step(self, odometry_delta, scan: LaserScan, laser_offset=None) -> StepReport:
         """Process one scan.
 
         Args:
-            odometry_delta: (3,) robot-frame increment (Δx m, Δy m, Δφ rad) since the last step.
+            odometry_delta: (3,) robot-frame increment (Δx m, Δy m, Δφ rad) since the last
+                step, or None when the robot has not moved (no prediction, e.g. the first scan).
             scan: the laser scan taken at the new pose.
             laser_offset: (3,) laser pose in the robot frame; zeros by default.
         """
-        delta = np.asarray(odometry_delta, dtype=float).reshape(-1)
-        if delta.shape != (3,) or not np.all(np.isfinite(delta)):
-            raise InputError(f"odometry increment must be 3 finite numbers, got {odometry_delta!r}")
         offset = np.zeros(3) if laser_offset is None else np.asarray(laser_offset, dtype=float)
         report = StepReport()
-        self._predict(delta)
+        if odometry_delta is not None:
+            delta = np.asarray(odometry_delta, dtype=float).reshape(-1)
+            if delta.shape != (3,) or not np.all(np.isfinite(delta)):
+                raise InputError(f"odometry increment must be 3 finite numbers, got {odometry_delta!r}")
+            self._predict(delta)
         observed = self._observe(scan, report)
         matches = self._associate(observed, offset)
         self._update(observed, matches, offset, report)
+        self._reassociate(observed, matches, offset, report)
         self._enlarge(observed, matches, offset, report)
         self.steps += 1
         report.state_size = self.state.size
@@ -158,11 +179,10 @@ class SplineSLAM:
         return features.splines
 
     def _associate(self, observed: list[ObservedSpline], offset: np.ndarray) -> list[list[Match]]:
-        cfg = self.config
+        cfg = self.config.association
         lp = laser_pose(self.state.pose, offset)
         world = [o.curve.transformed(lp[2], lp[:2]) for o in observed]
         x = self.state.x
-        radius = cfg.association.map_radius_m
         candidates = {}
         for f in self.features.values():
             curve = f.curve(x)
@@ -170,10 +190,31 @@ class SplineSLAM:
             # distance from the robot to the box; only nearby features are candidates
             dx = max(b[0] - lp[0], 0.0, lp[0] - b[2])
             dy = max(b[1] - lp[1], 0.0, lp[1] - b[3])
-            if dx * dx + dy * dy <= radius * radius:
+            if dx * dx + dy * dy <= cfg.map_radius_m ** 2:
                 candidates[f.id] = curve
-        gate = cfg.association.control_point_gate_factor * cfg.spline.knot_spacing_m
-        return associate(world, candidates, gate, cfg.association.match_distance_m)
+        if not candidates or not observed:
+            return [[] for _ in observed]
+        # Grow both thresholds by the predicted uncertainty of each observed spline's far end.
+        P = self.state.P
+        reach = np.array([np.max(np.hypot(*o.curve.control_points[[0, -1]].T)) for o in observed])
+        sigma_end = np.sqrt(P[0, 0] + P[1, 1] + reach ** 2 * P[2, 2])
+        grow = cfg.uncertainty_sigmas * sigma_end
+        delta = np.minimum(cfg.match_distance_m + grow, cfg.max_match_distance_m)
+        gate = cfg.control_point_gate_factor * self.config.spline.knot_spacing_m + grow
+        return associate(world, candidates, gate, delta)
+
+    def _reassociate(self, observed, matches, offset, report: StepReport) -> None:
+        """Give splines that matched nothing a second chance at the corrected pose before
+        they become new features (a wall seen after a poorly predicted turn)."""
+        lost = [i for i, m in enumerate(matches) if not m]
+        if not lost or not report.beams_used:
+            return
+        retry = [observed[i] for i in lost]
+        found = self._associate(retry, offset)
+        if any(found):
+            self._update(retry, found, offset, report)
+            for i, m in zip(lost, found):
+                matches[i] = m
 
     def _beam_groups(self, observed: list[ObservedSpline], matches: list[list[Match]]) -> list[_BeamGroup]:
         stride = self.config.observation.beam_stride
@@ -195,58 +236,118 @@ class SplineSLAM:
             out.append(_BeamGroup(self.features[fid], b, r, t))
         return out
 
-    def _update(self, observed, matches, offset, report: StepReport) -> None:
-        groups = self._beam_groups(observed, matches)
-        report.matched_splines = sum(1 for m in matches if m)
-        if not groups:
-            return
-        cfg = self.config.observation
-        x = self.state.x
-        pose = x[:3].copy()
-        max_tan = math.tan(cfg.max_incidence_rad)
-        rows_pose, rows_cp_cols, rows_cp_vals, innov = [], [], [], []
-        for g in groups:
+    def _linearize(self, groups: list[_BeamGroup], x: np.ndarray, offset: np.ndarray,
+                   report: StepReport | None) -> _Linearization | None:
+        """Predicted ranges and the stacked Jacobian of every beam at the estimate ``x``.
+
+        Beams that miss their spline or hit it at grazing incidence are dropped (and
+        counted when ``report`` is given). Returns None when no beam is left.
+        """
+        max_tan = math.tan(self.config.observation.max_incidence_rad)
+        pose = x[:3]
+        offset_ = offset
+        rows_pose, cp_cols, cp_vals, residual, owner, row_in_group, hit_t = [], [], [], [], [], [], []
+        for gi, g in enumerate(groups):
             f = g.feature
-            pred = predict_beams(f.curve(x), pose, offset, g.bearings, t0=g.t0)
+            pred = predict_beams(f.curve(x), pose, offset_, g.bearings, t0=g.t0)
             ok = pred.hit & np.isfinite(pred.z)
-            report.drop("missed", int((~ok).sum()))
             grazing = ok & (np.abs(pred.r) > max_tan)
-            report.drop("grazing", int(grazing.sum()))
+            if report is not None:
+                report.drop("missed", int((~ok).sum()))
+                report.drop("grazing", int(grazing.sum()))
             ok &= ~grazing
             if not ok.any():
                 continue
-            f.observations += 1
-            innov.append(g.ranges[ok] - pred.z[ok])
+            residual.append(g.ranges[ok] - pred.z[ok])
             rows_pose.append(pred.H_pose[ok])
+            owner.append(np.full(int(ok.sum()), gi))
+            row_in_group.append(np.flatnonzero(ok))
+            hit_t.append(pred.t[ok])
             if f.in_state:
                 cp = pred.first_cp[ok][:, None] + np.arange(f.degree + 1)[None, :]
-                rows_cp_cols.append(np.hstack([f.idx_x[cp], f.idx_y[cp]]))
-                rows_cp_vals.append(np.hstack([pred.H_cp_x[ok], pred.H_cp_y[ok]]))
-        if not innov:
+                cols = np.hstack([f.idx_x[cp], f.idx_y[cp]])
+                vals = np.hstack([pred.H_cp_x[ok], pred.H_cp_y[ok]])
+            else:  # localisation mode: features are fixed, H has pose columns only
+                cols = np.full((int(ok.sum()), 0), -1)
+                vals = np.zeros((int(ok.sum()), 0))
+            cp_cols.append(cols)
+            cp_vals.append(vals)
+        if not residual:
+            return None
+        # Features may differ in degree, so pad the per-beam column lists to one width.
+        width = max(c.shape[1] for c in cp_cols)
+        cp_cols_a = np.vstack([np.pad(c, ((0, 0), (0, width - c.shape[1])), constant_values=-1) for c in cp_cols])
+        cp_vals_a = np.vstack([np.pad(v, ((0, 0), (0, width - v.shape[1]))) for v in cp_vals])
+        used = cp_cols_a >= 0
+        cols = np.concatenate([np.arange(3), np.unique(cp_cols_a[used])])
+        m = sum(r.shape[0] for r in residual)
+        H_c = np.zeros((m, cols.shape[0]))
+        H_c[:, :3] = np.vstack(rows_pose)
+        r_idx, _ = np.nonzero(used)
+        H_c[r_idx, np.searchsorted(cols[3:], cp_cols_a[used]) + 3] = cp_vals_a[used]
+        return _Linearization(cols, H_c, np.concatenate(residual), np.concatenate(owner),
+                              np.concatenate(row_in_group), np.concatenate(hit_t))
+
+    @staticmethod
+    def _keep_rows(groups: list[_BeamGroup], lin: _Linearization, keep: np.ndarray) -> list[_BeamGroup]:
+        """The beam groups restricted to the linearised rows in ``keep``, Newton restarted from
+        their last hit parameters."""
+        out = []
+        for gi, g in enumerate(groups):
+            sel = keep & (lin.owner == gi)
+            if sel.any():
+                rows = lin.row_in_group[sel]
+                out.append(_BeamGroup(g.feature, g.bearings[rows], g.ranges[rows], lin.hit_t[sel]))
+        return out
+
+    def _update(self, observed, matches, offset, report: StepReport) -> None:
+        """Iterated EKF update (Gauss–Newton on the mean, one covariance update at the end).
+
+        The paper's filter linearises once. Relinearising the range model at the corrected
+        estimate costs O(n·c) per iteration — negligible next to the O(n²) covariance update —
+        and removes most of the linearisation error after a poorly predicted turn, which is
+        where the single-step filter becomes inconsistent.
+        """
+        groups = self._beam_groups(observed, matches)
+        report.matched_splines += sum(1 for m in matches if m)
+        if not groups:
             return
-        nu = np.concatenate(innov)
-        H_pose = np.vstack(rows_pose)
-        if rows_cp_cols:
-            # Features may differ in degree, so pad the per-beam column lists to one width.
-            width = max(c.shape[1] for c in rows_cp_cols)
-            cp_cols = np.vstack([np.pad(c, ((0, 0), (0, width - c.shape[1])), constant_values=-1) for c in rows_cp_cols])
-            cp_vals = np.vstack([np.pad(v, ((0, 0), (0, width - v.shape[1]))) for v in rows_cp_vals])
-            used = cp_cols >= 0
-            cols = np.concatenate([np.arange(3), np.unique(cp_cols[used])])
-        else:
-            cols = np.arange(3)
-        H_c = np.zeros((nu.shape[0], cols.shape[0]))
-        H_c[:, :3] = H_pose
-        if rows_cp_cols:
-            r_idx, k_idx = np.nonzero(used)
-            H_c[r_idx, np.searchsorted(cols[3:], cp_cols[used]) + 3] = cp_vals[used]
-        result = stacked_update(self.state, cols, H_c, nu, self._range_variance, gate=self._gate)
+        R = self._range_variance
+        x0 = self.state.x.copy()
+        P = self.state.P
+        lin = self._linearize(groups, x0, offset, report)
+        if lin is None:
+            return
+        s_diag = innovation_variances(P, lin.cols, lin.H_c, R)
+        accepted = lin.residual ** 2 <= self._gate * s_diag
+        report.drop("gate", int((~accepted).sum()))
+        if not accepted.any():
+            return
+        groups = self._keep_rows(groups, lin, accepted)
+        x_i = x0
+        for _ in range(self.config.observation.iterations):
+            lin = self._linearize(groups, x_i, offset, None)
+            if lin is None:
+                return
+            gain = StackedGain(P, lin.cols, lin.H_c, R)
+            # IEKF: ν_i = z − h(x_i) − H_i (x₀ − x_i)
+            nu = lin.residual - lin.H_c @ (x0[lin.cols] - x_i[lin.cols])
+            dx, nis = gain.correction(nu)
+            x_new = x0 + dx
+            step = np.abs(x_new[:3] - x_i[:3])
+            x_i = x_new
+            groups = self._keep_rows(groups, lin, np.ones(lin.residual.shape[0], dtype=bool))
+            if step[0] < 1e-5 and step[1] < 1e-5 and step[2] < 1e-6:
+                break
+        self.state.x[:] = x_i
+        gain.update_covariance(self.state)
         self.state.x[2] = wrap_angle(self.state.x[2])
-        report.drop("gate", int((~result.accepted).sum()))
-        report.innovations = result.innovation
-        report.innovation_variances = result.innovation_variance
-        report.nis = result.nis
-        report.nis_dof = int(result.innovation.shape[0])
+        for g in groups:
+            g.feature.observations += 1
+        report.innovations = np.concatenate([report.innovations, nu])
+        report.innovation_variances = np.concatenate([report.innovation_variances, gain.S_diag])
+        report.nis += nis
+        report.nis_dof += int(nu.shape[0])
         report.beams_used = report.nis_dof
 
     # -- map enlargement ----------------------------------------------------------------
@@ -270,13 +371,16 @@ class SplineSLAM:
                 sel = (obs.params < u1) if side == "left" else (obs.params > u0)
                 if sel.sum() < obs.curve.degree + 2:
                     continue
-                if cfg.mapping.extend and at_end and (match.feature_id, side) not in extended:
+                if not at_end:
+                    continue
+                if cfg.mapping.extend and (match.feature_id, side) not in extended:
                     if self._extend_feature(self.features[match.feature_id], obs, match, side, sel, offset):
                         extended.add((match.feature_id, side))
                         report.extended_splines += 1
-                elif not cfg.mapping.extend and at_end:
-                    if self._add_feature(obs, sel, offset, refit=True):
-                        report.new_splines += 1
+                        continue
+                # no extension (by choice, or it did not fit its data): a new spline instead
+                if self._add_feature(obs, sel, offset, refit=True):
+                    report.new_splines += 1
 
     def _new_id(self) -> int:
         self._next_id += 1
@@ -285,7 +389,6 @@ class SplineSLAM:
     def _add_feature(self, obs: ObservedSpline, sel: np.ndarray, offset: np.ndarray, refit: bool = False) -> bool:
         cfg = self.config
         if refit:
-            from bsslam.spline import fit_curve
             try:
                 fit = fit_curve(obs.points[sel], cfg.spline.degree, cfg.spline.knot_spacing_m)
             except FitError:
@@ -318,6 +421,9 @@ class SplineSLAM:
         try:
             ext = extend_curve(curve, side, bp.points, params, self.config.spline.knot_spacing_m)
         except FitError:
+            return False
+        _, _, dist = closest_point(ext.curve, bp.points)
+        if np.sqrt(np.mean(dist ** 2)) > self.config.mapping.max_extension_rms_m:
             return False
         n_old, m = curve.n_control, ext.n_added
         new_rows = ext.psi[n_old:] if side == "right" else ext.psi[:m]

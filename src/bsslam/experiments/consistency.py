@@ -1,0 +1,165 @@
+"""The paper's consistency experiments (Figs. 10 and 12, spec §10).
+
+Monte Carlo runs of full SLAM in a simulated world with exact ground truth. Per step: the
+pose NEES ``eᵀ P⁻¹ e`` (3 dof), averaged over runs and compared with the two-sided 95% χ²
+band for that number of runs; and the mean pose error with its mean ±2σ bound.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+
+from bsslam.config import SLAMConfig
+from bsslam.errors import ConfigError
+from bsslam.eval import chi2_band, nees
+from bsslam.pipeline import run_dataset
+from bsslam.sim import SimConfig, get_world, run_monte_carlo, simulate
+from bsslam.trajectory import wrap_angle
+
+VARIANTS = ("no-extension", "inflated-r", "extension")
+
+
+def variant_config(variant: str, base: SLAMConfig | None = None) -> SLAMConfig:
+    """The filter configuration of one of the paper's variants.
+
+    ``no-extension``: map splines are never extended, new splines start instead (paper's B);
+    ``inflated-r``: the same with the range covariance R multiplied by 3 (Fig. 12.b);
+    ``extension``: splines are extended at their ends (paper's A).
+    """
+    base = base or SLAMConfig()
+    if variant not in VARIANTS:
+        raise ConfigError(f"unknown variant {variant!r}; choose one of {', '.join(VARIANTS)}")
+    extend = variant == "extension"
+    inflation = 3.0 if variant == "inflated-r" else 1.0
+    return base.replace(
+        mapping=dataclasses.replace(base.mapping, extend=extend),
+        observation=dataclasses.replace(base.observation, r_inflation=inflation),
+    )
+
+
+def simulation_config(config: SLAMConfig, sim: SimConfig | None = None) -> SLAMConfig:
+    """The filter configuration matched to a simulator's true noise (range σ, odometry)."""
+    sim = sim or SimConfig()
+    return config.replace(
+        motion=sim.motion,
+        observation=dataclasses.replace(config.observation, sigma_range_m=sim.sigma_range_m),
+    )
+
+
+@dataclass(frozen=True)
+class RunErrors:
+    """Per-step pose errors of one run: errors (N, 3), sigmas (N, 3), nees (N,)."""
+
+    errors: np.ndarray
+    sigmas: np.ndarray
+    nees: np.ndarray
+
+
+def pose_errors(estimate, truth) -> RunErrors:
+    """Errors true − estimated (angle wrapped), their σ and NEES for matched trajectories.
+
+    The first pose defines the map frame and has zero covariance: its NEES is NaN.
+    """
+    e = truth.poses - estimate.poses
+    e[:, 2] = wrap_angle(e[:, 2])
+    cov = estimate.covariances
+    sig = np.sqrt(np.maximum(np.einsum("nii->ni", cov), 0.0))
+    value = np.full(e.shape[0], np.nan)
+    defined = np.linalg.det(cov) > 0
+    value[defined] = nees(e[defined], cov[defined])
+    return RunErrors(e, sig, value)
+
+
+def _one_run(seed: int, world: str, steps: int | None, config: SLAMConfig, sim: SimConfig) -> RunErrors:
+    data = simulate(get_world(world), sim, seed=seed, steps=steps)
+    result = run_dataset(data, config, point_stride=0)
+    return pose_errors(result.estimate, data.ground_truth)
+
+
+@dataclass(frozen=True)
+class ConsistencyResult:
+    """Averages over runs, per step: mean NEES (N,), band (lower, upper), mean errors
+    (N, 3), mean σ (N, 3), and the per-run NEES (runs, N)."""
+
+    variant: str
+    world: str
+    mean_nees: np.ndarray
+    lower: float
+    upper: float
+    mean_errors: np.ndarray
+    mean_sigmas: np.ndarray
+    nees_runs: np.ndarray
+
+    @property
+    def steps(self) -> np.ndarray:
+        """Step numbers (1 = the first step after the one that defines the map frame)."""
+        return np.arange(1, self.mean_nees.shape[0] + 1)
+
+    def first_exit(self, persist: int = 5) -> int | None:
+        """First step from which the mean NEES stays above the band for ``persist`` steps
+        (the filter has become optimistic); None if it never does."""
+        above = self.mean_nees > self.upper
+        for k in range(above.size - persist + 1):
+            if above[k:k + persist].all():
+                return int(k) + 1
+        return None
+
+    def fraction_inside(self) -> float:
+        inside = (self.mean_nees >= self.lower) & (self.mean_nees <= self.upper)
+        return float(inside.mean()) if inside.size else float("nan")
+
+
+def consistency_experiment(variant: str, runs: int = 50, seed: int = 0, world: str = "rounded-room",
+                           steps: int | None = None, workers: int | None = None, progress=None,
+                           base: SLAMConfig | None = None, sim: SimConfig | None = None) -> ConsistencyResult:
+    """Monte Carlo NEES of one variant (seeds ``seed … seed+runs−1``), using every core."""
+    sim = sim or SimConfig()
+    config = simulation_config(variant_config(variant, base), sim)
+    fn = partial(_one_run, world=world, steps=steps, config=config, sim=sim)
+    results = run_monte_carlo(fn, list(range(seed, seed + runs)), workers=workers, progress=progress)
+    n = min(r.nees.shape[0] for r in results)
+    # step 0 has P = 0 (the map frame is the first pose): NEES starts at step 1
+    runs_nees = np.stack([r.nees[1:n] for r in results])
+    lower, upper = chi2_band(3, runs)
+    return ConsistencyResult(
+        variant, world, mean_nees=runs_nees.mean(axis=0), lower=lower, upper=upper,
+        mean_errors=np.mean([r.errors[1:n] for r in results], axis=0),
+        mean_sigmas=np.mean([r.sigmas[1:n] for r in results], axis=0), nees_runs=runs_nees,
+    )
+
+
+def write_consistency(result: ConsistencyResult, run_dir: Path) -> list[Path]:
+    """``nees.csv`` (step,mean_nees,lower,upper), ``errors.csv`` and the PNGs."""
+    from bsslam.viz import plot_errors_with_bounds, plot_nees, new_figure, save_figure
+
+    run_dir = Path(run_dir)
+    paths = [run_dir / "nees.csv", run_dir / "errors.csv", run_dir / "nees.png", run_dir / "errors.png"]
+    with open(paths[0], "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["step", "mean_nees", "lower", "upper"])
+        for k, v in zip(result.steps, result.mean_nees):
+            w.writerow([k, f"{v:.6g}", f"{result.lower:.6g}", f"{result.upper:.6g}"])
+    with open(paths[1], "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["step", "mean_err_x_m", "mean_err_y_m", "mean_err_phi_rad",
+                    "mean_sigma_x_m", "mean_sigma_y_m", "mean_sigma_phi_rad"])
+        for i, k in enumerate(result.steps):
+            w.writerow([k, *(f"{v:.6g}" for v in result.mean_errors[i]), *(f"{v:.6g}" for v in result.mean_sigmas[i])])
+    runs = result.nees_runs.shape[0]
+    fig = new_figure()
+    ax = fig.add_subplot()
+    plot_nees(ax, result.steps, result.mean_nees, result.lower, result.upper,
+              title=f"{result.variant}: average NEES over {runs} runs ({result.world})")
+    save_figure(fig, [paths[2]])
+    fig = new_figure(height_in=8.0)
+    axes = fig.subplots(3, 1, sharex=True)
+    plot_errors_with_bounds(axes, result.steps, result.mean_errors, result.mean_sigmas)
+    axes[0].set_title(f"{result.variant}: mean pose error and ±2σ ({runs} runs)")
+    save_figure(fig, [paths[3]])
+    return paths

@@ -1,0 +1,97 @@
+"""Write a run's results folder: trajectory, covariances, map, grid, pictures, summary.
+
+One function serves ``bsslam simulate`` and ``bsslam run``, so both produce the same files.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from bsslam.config import SLAMConfig
+from bsslam.eval import ate
+from bsslam.io.config_file import write_config
+from bsslam.io.grid import render_grid, write_grid
+from bsslam.io.map_file import write_map_json
+from bsslam.io.pose_covariance_file import write_pose_covariance_csv
+from bsslam.io.trajectory_file import write_tum
+from bsslam.pipeline import RunResult
+from bsslam.trajectory import Trajectory
+
+
+def sample_curves(curves, step_m: float = 0.02) -> list[np.ndarray]:
+    """Polylines (k, 2) along each curve, about ``step_m`` apart."""
+    out = []
+    for c in curves:
+        lo, hi = c.domain
+        n = max(2, int(np.ceil((hi - lo) / step_m)) + 1)
+        out.append(c.evaluate(np.linspace(lo, hi, n)))
+    return out
+
+
+def summarize(result: RunResult, reference: Trajectory | None = None, exact_reference: bool = False) -> dict:
+    """The summary.json contents. ``reference`` (or the dataset's ground truth) adds ATE;
+    an exact reference (simulation) also adds the final error and the mean pose NEES."""
+    est = result.estimate
+    ref = reference if reference is not None else result.ground_truth
+    n_cp = sum(m.curve.n_control for m in result.map)
+    summary = {
+        "name": result.name,
+        "scans": result.steps,
+        "wall_time_s": round(result.wall_time_s, 3),
+        "ms_per_step": round(1000.0 * result.wall_time_s / max(result.steps, 1), 3),
+        "splines": len(result.map),
+        "control_points": int(n_cp),
+        "state_size": int(result.state_sizes[-1]) if result.steps else 3,
+        "max_state_size": int(result.state_sizes.max()) if result.steps else 3,
+        **{k: int(v) for k, v in sorted(result.totals.items())},
+        "skipped_input": int(result.skipped.total),
+        "skipped_input_by_reason": dict(result.skipped.counts),
+    }
+    if ref is not None and len(ref) and result.steps:
+        rmse, matched, _ = ate(est, ref)
+        summary["ate_m"] = round(float(rmse), 5)
+        summary["ate_matched_poses"] = int(matched)
+        odo_rmse, _, _ = ate(result.odometry, ref)
+        summary["odometry_ate_m"] = round(float(odo_rmse), 5)
+        if exact_reference and len(ref) == len(est):
+            from bsslam.experiments.consistency import pose_errors
+
+            err = pose_errors(est, ref)
+            summary["final_position_error_m"] = round(float(np.hypot(*err.errors[-1, :2])), 5)
+            summary["final_heading_error_rad"] = round(float(err.errors[-1, 2]), 6)
+            # step 0 has zero covariance (it defines the map frame): NaN, left out
+            summary["mean_nees"] = round(float(np.nanmean(err.nees)), 4) if len(est) > 1 else None
+    return summary
+
+
+def write_outputs(result: RunResult, run_dir: Path, config: SLAMConfig, *, walls=None,
+                  reference: Trajectory | None = None, exact_reference: bool = False,
+                  title: str = "") -> dict:
+    """Write every output file into ``run_dir`` and return the summary."""
+    from bsslam.viz import save_map_figure
+
+    run_dir = Path(run_dir)
+    write_tum(run_dir / "trajectory.tum", result.estimate)
+    write_tum(run_dir / "odometry.tum", result.odometry)
+    if result.ground_truth is not None:
+        write_tum(run_dir / "ground_truth.tum", result.ground_truth)
+    write_pose_covariance_csv(run_dir / "pose_covariance.csv", result.estimate)
+    write_map_json(run_dir / "map.json", result.map)
+    write_config(run_dir / "config.yaml", config)
+    curves = [m.curve for m in result.map]
+    polylines = sample_curves(curves)
+    grid, origin = render_grid(polylines, resolution_m=0.05, margin_m=1.0)
+    write_grid(run_dir / "grid.pgm", run_dir / "grid.yaml", grid, origin, 0.05)
+    ref = reference if reference is not None else result.ground_truth
+    save_map_figure(
+        [run_dir / "map.png", run_dir / "map.svg"], walls=walls, curves=curves,
+        true_poses=None if ref is None else ref.poses, est_poses=result.estimate.poses,
+        est_covariances=result.estimate.covariances, odom_poses=result.odometry.poses,
+        points=result.points if len(result.points) else None, title=title or result.name,
+    )
+    summary = summarize(result, reference, exact_reference)
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    return summary
