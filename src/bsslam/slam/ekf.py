@@ -61,6 +61,14 @@ class StackedGain:
         w = solve_triangular(self.L, innovation, lower=True, check_finite=False)
         return self.P_c @ (self.Y.T @ w), float(w @ w)
 
+    def posterior_variances(self, P: np.ndarray, cols: np.ndarray, H_c: np.ndarray,
+                            range_variance: float) -> np.ndarray:
+        """(m,) variances H P⁺ Hᵀ + R of beams linearised on ``cols`` under the posterior
+        P⁺ = P − P Hᵀ S⁻¹ H P of this gain, without forming P⁺ beyond those columns."""
+        Z = P[np.ix_(cols, self.cols)] @ self.Y.T
+        P_post = P[np.ix_(cols, cols)] - Z @ Z.T
+        return np.einsum("ij,ij->i", H_c @ P_post, H_c) + range_variance
+
     def update_covariance(self, state: JointState) -> None:
         """P ← P − P Hᵀ S⁻¹ H P, as P − Z Zᵀ with the smaller of the two possible ranks."""
         Y = self.Y

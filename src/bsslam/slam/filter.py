@@ -14,6 +14,7 @@ import numpy as np
 from bsslam.config import SLAMConfig
 from bsslam.errors import FilterError, FitError, InputError
 from bsslam.scan import LaserScan, ObservedSpline, extract_splines
+from bsslam.scan.observed import fit_to_noise
 from bsslam.slam.association import Match, associate
 from bsslam.slam.ekf import StackedGain, gate_threshold, innovation_variances
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
@@ -21,7 +22,7 @@ from bsslam.slam.features import MapSpline, SplineFeature
 from bsslam.slam.motion import motion_noise, predict
 from bsslam.slam.observation import laser_pose, predict_beams
 from bsslam.slam.state import JointState
-from bsslam.spline import closest_point, extend_curve, fit_curve
+from bsslam.spline import closest_point, extend_curve
 from bsslam.trajectory import wrap_angle
 
 
@@ -108,6 +109,7 @@ class SplineSLAM:
         self.steps = 0
         self._next_id = 0
         self._gate = gate_threshold(self.config.observation.gate_probability)
+        self._loose_gate = gate_threshold(1.0 - (1.0 - self.config.observation.gate_probability) / 100.0)
 
     # -- public views -------------------------------------------------------------------
     @property
@@ -318,13 +320,29 @@ class SplineSLAM:
         lin = self._linearize(groups, x0, offset, report)
         if lin is None:
             return
+        # Gating at the prior alone is biased: every innovation carries the same pose error,
+        # so after a poorly predicted step a tight gate drops exactly the beams that disagree
+        # with the prior. Gross outliers go first (loose gate at the prior); the real gate is
+        # applied at the first corrected estimate with posterior variances.
         s_diag = innovation_variances(P, lin.cols, lin.H_c, R)
-        accepted = lin.residual ** 2 <= self._gate * s_diag
-        report.drop("gate", int((~accepted).sum()))
-        if not accepted.any():
+        coarse = lin.residual ** 2 <= self._loose_gate * s_diag
+        report.drop("gate", int((~coarse).sum()))
+        if not coarse.any():
             return
-        groups = self._keep_rows(groups, lin, accepted)
-        x_i = x0
+        groups = self._keep_rows(groups, lin, coarse)
+        lin = self._linearize(groups, x0, offset, None)
+        if lin is None:
+            return
+        gain = StackedGain(P, lin.cols, lin.H_c, R)
+        x_i = x0 + gain.correction(lin.residual)[0]
+        lin = self._linearize(groups, x_i, offset, None)
+        if lin is None:
+            return
+        fine = lin.residual ** 2 <= self._gate * gain.posterior_variances(P, lin.cols, lin.H_c, R)
+        report.drop("gate", int((~fine).sum()))
+        if not fine.any():
+            return
+        groups = self._keep_rows(groups, lin, fine)
         for _ in range(self.config.observation.iterations):
             lin = self._linearize(groups, x_i, offset, None)
             if lin is None:
@@ -390,7 +408,7 @@ class SplineSLAM:
         cfg = self.config
         if refit:
             try:
-                fit = fit_curve(obs.points[sel], cfg.spline.degree, cfg.spline.knot_spacing_m)
+                fit, _ = fit_to_noise(obs.points[sel], cfg)
             except FitError:
                 return False
             phi, knots = fit.phi, fit.curve.knots

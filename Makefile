@@ -1,0 +1,17 @@
+.PHONY: install test bench experiments
+install:
+	pip install -e ".[test]"
+test:
+	pytest -q -n 2
+bench:
+	bsslam bench
+	python benchmarks/bench_spline.py
+	python benchmarks/bench_segment.py
+	python benchmarks/bench_filter.py
+experiments:
+	bsslam experiment fit-knots --out results/fit-knots
+	bsslam experiment fit-order --out results/fit-order
+	bsslam experiment consistency --variant no-extension --out results/consistency-no-extension
+	bsslam experiment consistency --variant inflated-r --out results/consistency-inflated-r
+	bsslam experiment consistency --variant extension --out results/consistency-extension
+	bsslam experiment heading-gain --out results/heading-gain

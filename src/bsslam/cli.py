@@ -1,0 +1,273 @@
+"""The ``bsslam`` command line: thin verbs over library functions."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+from enum import Enum
+from pathlib import Path
+from typing import Iterator, Optional
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.table import Table
+
+from bsslam.errors import BsslamError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True,
+                  help="BS-SLAM: EKF SLAM with B-spline map features for 2D laser range finders.")
+experiment_app = typer.Typer(no_args_is_help=True, help="Reproduce the paper's experiments.")
+app.add_typer(experiment_app, name="experiment")
+console = Console(stderr=True)
+
+OUT_HELP = "Results folder: files go to DIR/<timestamp>/ and DIR/latest points at them."
+
+
+@contextlib.contextmanager
+def progress_bar(description: str, total: int | None, unit: str = "") -> Iterator:
+    """A rich progress bar; yields ``update(done, total)`` for library callbacks."""
+    columns = [TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+               TextColumn("{task.fields[rate]}"), TimeElapsedColumn(), TimeRemainingColumn()]
+    with Progress(*columns, console=console) as bar:
+        task = bar.add_task(description, total=total, rate="")
+
+        def update(done: int, total_: int | None = None) -> None:
+            elapsed = bar.tasks[0].elapsed or 0.0
+            rate = f"{done / elapsed:.1f} {unit}/s" if unit and elapsed > 0 else ""
+            bar.update(task, completed=done, total=total_ if total_ is not None else total, rate=rate)
+
+        yield update
+
+
+def fail(exc: Exception) -> None:
+    console.print(f"[red]error:[/red] {exc}")
+    raise typer.Exit(2)
+
+
+def print_summary(summary: dict, title: str) -> None:
+    table = Table(title=title, show_header=False)
+    for key, value in summary.items():
+        if isinstance(value, dict):
+            value = ", ".join(f"{k}={v}" for k, v in value.items()) or "-"
+        table.add_row(key, str(value))
+    Console().print(table)
+
+
+def _load_config(config_file: Optional[Path]):
+    from bsslam.config import SLAMConfig
+    from bsslam.io.config_file import load_config
+
+    return load_config(config_file) if config_file else SLAMConfig()
+
+
+@app.callback()
+def main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log details to stderr.")) -> None:
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+
+
+# --------------------------------------------------------------------------------------
+@app.command()
+def simulate(
+    world: str = typer.Option("rounded-room", help="Built-in world (see --list)."),
+    seed: int = typer.Option(0, help="Random seed of the simulated noise."),
+    steps: Optional[int] = typer.Option(None, help="Number of scans (default: the whole double loop)."),
+    out: Path = typer.Option(Path("results/simulate"), help=OUT_HELP),
+    config_file: Optional[Path] = typer.Option(None, "--config", help="YAML configuration of the filter."),
+    list_worlds: bool = typer.Option(False, "--list", help="List the built-in worlds and exit."),
+) -> None:
+    """One SLAM run in a simulated world with exact ground truth."""
+    from bsslam.experiments.consistency import simulation_config
+    from bsslam.io.results import make_run_dir
+    from bsslam.outputs import write_outputs
+    from bsslam.pipeline import run_dataset
+    from bsslam.sim import WORLDS, SimConfig, get_world, simulate as simulate_world
+
+    if list_worlds:
+        for name, w in WORLDS.items():
+            typer.echo(f"{name:15s} {w.description}")
+        return
+    try:
+        sim = SimConfig()
+        config = simulation_config(_load_config(config_file), sim)
+        data = simulate_world(get_world(world), sim, seed=seed, steps=steps)
+        run_dir = make_run_dir(out)
+        with progress_bar(f"SLAM in {world}", len(data.ground_truth), "scans") as update:
+            result = run_dataset(data, config, progress=update, total=len(data.ground_truth))
+        summary = write_outputs(result, run_dir, config, walls=data.world.polylines(0.02),
+                                exact_reference=True, title=f"BS-SLAM in the simulated world '{world}' (seed {seed})")
+    except BsslamError as exc:
+        fail(exc)
+    print_summary(summary, f"bsslam simulate --world {world}")
+    console.print(f"results in [bold]{run_dir}[/bold] (map picture: {run_dir / 'map.png'})")
+
+
+@app.command()
+def run(
+    log: Path = typer.Argument(..., help="CARMEN log (.clf/.log), ROS 1 bag (.bag) or ROS 2 bag folder."),
+    config_file: Optional[Path] = typer.Option(None, "--config", help="YAML configuration of the filter."),
+    out: Path = typer.Option(Path("results/run"), help=OUT_HELP),
+    mode: Optional[str] = typer.Option(None, help="slam (default) or localization."),
+    fmt: Optional[str] = typer.Option(None, "--format", help="carmen, ros1 or ros2 (default: from the path)."),
+    strict: bool = typer.Option(False, help="Stop at the first bad input line instead of skipping it."),
+    steps: Optional[int] = typer.Option(None, help="Process only the first N scans."),
+    reference: Optional[Path] = typer.Option(None, help="Reference trajectory (TUM or 't x y θ') for ATE."),
+    scan_topic: Optional[str] = typer.Option(None, help="ROS: LaserScan topic (default: auto)."),
+    odom_topic: Optional[str] = typer.Option(None, help="ROS: Odometry topic (default: auto, else /tf)."),
+) -> None:
+    """Run BS-SLAM on a laser log and write trajectory, map, grid and pictures."""
+    from bsslam.io import open_dataset
+    from bsslam.io.results import make_run_dir
+    from bsslam.io.trajectory_file import read_trajectory
+    from bsslam.outputs import write_outputs
+    from bsslam.pipeline import run_dataset
+
+    try:
+        config = _load_config(config_file)
+        if mode is not None:
+            config = config.replace(mode=mode)
+            config.__post_init__()
+        data = open_dataset(log, format=fmt, strict=strict, scan_topic=scan_topic, odom_topic=odom_topic)
+        ref = read_trajectory(reference) if reference else None
+        run_dir = make_run_dir(out)
+        with progress_bar(f"{log.name}", steps, "scans") as update:
+            result = run_dataset(data, config, steps=steps, progress=update, total=steps)
+        summary = write_outputs(result, run_dir, config, reference=ref, title=f"BS-SLAM: {log.name}")
+    except BsslamError as exc:
+        fail(exc)
+    print_summary(summary, f"bsslam run {log}")
+    if result.skipped.total:
+        console.print(f"[yellow]skipped {result.skipped.total} input item(s):[/yellow] "
+                      + ", ".join(f"{k}: {v}" for k, v in result.skipped.counts.items()))
+        for ex in result.skipped.examples[:5]:
+            console.print(f"  {ex}")
+    console.print(f"results in [bold]{run_dir}[/bold]")
+
+
+@app.command()
+def evaluate(
+    estimate: Path = typer.Argument(..., help="Estimated trajectory (TUM or 't x y θ')."),
+    reference: Path = typer.Argument(..., help="Reference trajectory (TUM or 't x y θ')."),
+    relations: Optional[Path] = typer.Option(None, help="Kümmerle et al. relations file."),
+    offset: float = typer.Option(0.0, help="Seconds to subtract from the relations' timestamps."),
+    max_dt: float = typer.Option(0.05, help="Largest timestamp difference when matching poses (s)."),
+    exact: bool = typer.Option(False, help="The reference is exact ground truth: also report NEES."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table."),
+) -> None:
+    """ATE, RPE, the relations metric and NEES of a trajectory against a reference."""
+    from bsslam.eval import evaluate_files
+
+    try:
+        metrics = evaluate_files(estimate, reference, relations_path=relations, offset=offset,
+                                 max_dt=max_dt, exact_reference=exact)
+    except BsslamError as exc:
+        fail(exc)
+    if as_json:
+        typer.echo(json.dumps(metrics, indent=2))
+    else:
+        print_summary(metrics, f"{estimate} vs {reference}")
+
+
+# --------------------------------------------------------------------------------------
+@experiment_app.command("fit-knots")
+def fit_knots(runs: int = typer.Option(50, help="Monte Carlo runs per spacing."),
+              seed: int = typer.Option(0),
+              resolution_deg: float = typer.Option(1.0, help="Angle between beams (deg)."),
+              sigma: float = typer.Option(0.005, help="Range noise σ (m)."),
+              out: Path = typer.Option(Path("results/fit-knots"), help=OUT_HELP)) -> None:
+    """Paper Fig. 2: mean squared range error of a cubic fit vs. knot spacing."""
+    from bsslam.experiments.fit import fit_knots_experiment, write_fit_knots
+    from bsslam.io.results import make_run_dir
+
+    run_dir = make_run_dir(out)
+    with progress_bar("fit vs knot spacing", None, "runs") as update:
+        results = fit_knots_experiment(runs=runs, seed=seed, resolution_deg=resolution_deg, sigma_m=sigma,
+                                       progress=update)
+    write_fit_knots(results, run_dir, seed=seed, resolution_deg=resolution_deg, sigma_m=sigma)
+    table = Table("knot spacing (m)", "MSE (m²)", title="Fit error vs knot spacing (cubic)")
+    for s, e in results:
+        table.add_row(f"{s:.3g}", f"{e:.3e}")
+    Console().print(table)
+    console.print(f"results in [bold]{run_dir}[/bold]")
+
+
+@experiment_app.command("fit-order")
+def fit_order(runs: int = typer.Option(50, help="Monte Carlo runs per order."),
+              seed: int = typer.Option(0),
+              resolution_deg: float = typer.Option(1.0, help="Angle between beams (deg)."),
+              sigma: float = typer.Option(0.005, help="Range noise σ (m)."),
+              out: Path = typer.Option(Path("results/fit-order"), help=OUT_HELP)) -> None:
+    """Paper Fig. 3: mean squared range error of linear, quadratic and cubic fits."""
+    from bsslam.experiments.fit import fit_order_experiment, write_fit_order
+    from bsslam.io.results import make_run_dir
+
+    run_dir = make_run_dir(out)
+    with progress_bar("fit vs order", None, "runs") as update:
+        results = fit_order_experiment(runs=runs, seed=seed, resolution_deg=resolution_deg, sigma_m=sigma,
+                                       progress=update)
+    write_fit_order(results, run_dir, seed=seed, resolution_deg=resolution_deg, sigma_m=sigma)
+    table = Table("order", "MSE (m²)", title="Fit error vs order (knot spacing 2.92 m)")
+    for o, e in results:
+        table.add_row(str(o), f"{e:.3e}")
+    Console().print(table)
+    console.print(f"results in [bold]{run_dir}[/bold]")
+
+
+class Variant(str, Enum):
+    no_extension = "no-extension"
+    inflated_r = "inflated-r"
+    extension = "extension"
+
+
+@experiment_app.command("consistency")
+def consistency(variant: Variant = typer.Option(..., help="Which filter variant."),
+                runs: int = typer.Option(50, help="Monte Carlo runs."), seed: int = typer.Option(0),
+                world: str = typer.Option("rounded-room", help="Simulated world."),
+                steps: Optional[int] = typer.Option(None, help="Steps per run (default: the double loop)."),
+                workers: Optional[int] = typer.Option(None, help="Processes (default: every core)."),
+                out: Path = typer.Option(Path("results/consistency"), help=OUT_HELP)) -> None:
+    """Paper Figs. 10/12: average pose NEES over Monte Carlo runs with the 95% χ² band."""
+    from bsslam.experiments.consistency import consistency_experiment, write_consistency
+    from bsslam.io.results import make_run_dir
+
+    try:
+        run_dir = make_run_dir(out)
+        with progress_bar(f"consistency ({variant.value})", runs, "runs") as update:
+            res = consistency_experiment(variant.value, runs=runs, seed=seed, world=world, steps=steps,
+                                         workers=workers, progress=update)
+        write_consistency(res, run_dir)
+    except BsslamError as exc:
+        fail(exc)
+    exit_step = res.first_exit()
+    print_summary({
+        "variant": res.variant, "world": res.world, "runs": runs, "steps": int(res.mean_nees.size),
+        "band": f"[{res.lower:.2f}, {res.upper:.2f}]",
+        "fraction of steps inside band": f"{res.fraction_inside():.2f}",
+        "leaves band (optimistic) at step": exit_step if exit_step is not None else "never",
+    }, "NEES consistency")
+    console.print(f"results in [bold]{run_dir}[/bold]")
+
+
+@experiment_app.command("heading-gain")
+def heading_gain(runs: int = typer.Option(50, help="Monte Carlo runs per initial σ."),
+                 updates: int = typer.Option(30, help="Scans per run."), seed: int = typer.Option(0),
+                 workers: Optional[int] = typer.Option(None, help="Processes (default: every core)."),
+                 out: Path = typer.Option(Path("results/heading-gain"), help=OUT_HELP)) -> None:
+    """Paper Fig. 11: estimated heading σ of a stationary robot over updates."""
+    from bsslam.experiments.heading import DEFAULT_SIGMAS_RAD, heading_gain_experiment, write_heading_gain
+    from bsslam.io.results import make_run_dir
+
+    run_dir = make_run_dir(out)
+    with progress_bar("heading gain", runs * len(DEFAULT_SIGMAS_RAD), "runs") as update:
+        res = heading_gain_experiment(runs=runs, updates=updates, seed=seed, workers=workers, progress=update)
+    write_heading_gain(res, run_dir)
+    table = Table("σ₀ (rad)", "σ_φ after 1 update", f"σ_φ after {updates}", title="Heading information gain")
+    for s0, sig in res.items():
+        table.add_row(f"{s0:g}", f"{sig[0]:.4g}", f"{sig[-1]:.4g}")
+    Console().print(table)
+    console.print(f"results in [bold]{run_dir}[/bold]")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    app()
