@@ -102,3 +102,16 @@ def test_nan_guesses_fall_back_to_the_global_search():
     t_mixed, _, d_mixed = closest_point(curve, queries, t0=[np.nan, t_global[1] + 0.1, np.nan])
     np.testing.assert_allclose(t_mixed, t_global, atol=1e-9)
     np.testing.assert_allclose(d_mixed, d_global, atol=1e-12)
+
+
+def test_closest_point_on_a_huge_curve_costs_bounded_memory():
+    """A diverged estimate (control points 1e9 m apart) must not make the sampling explode."""
+    from bsslam.spline import BSplineCurve, clamped_knots, closest_point
+
+    cps = np.array([[0.0, 0.0], [1e9, 1.0], [2e9, -1.0], [3e9, 0.0]])
+    curve = BSplineCurve(cps, clamped_knots(1.0, 1.0, 3), 3)
+    t, pts, dist = closest_point(curve, np.array([[1e9, 5.0]]))
+    assert np.isfinite(t).all() and np.isfinite(dist).all()
+    # still a local minimum of the distance: the derivative of |s(t) − q|² vanishes or t is an end
+    d = curve.evaluate(t, der=1)[0] @ (pts[0] - np.array([1e9, 5.0]))
+    assert abs(d) <= 1e-6 * np.linalg.norm(curve.evaluate(t, der=1)[0]) * (dist[0] + 1) or t[0] in curve.domain

@@ -70,6 +70,9 @@ def closest_point(
     return t_best, points, np.sqrt(d2[best])
 
 
+MAX_SAMPLES_PER_SPAN = 256
+
+
 def _starts_at_sampled_minima(
     curve: BSplineCurve, q: np.ndarray, sample_step_m: float, samples_per_span: int
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -83,7 +86,9 @@ def _starts_at_sampled_minima(
     # The control polygon of a span is at least as long as the curve over it.
     window = curve.control_points[pieces.spans[:, None] - curve.degree + np.arange(curve.degree + 1)]
     polygon = np.sum(np.linalg.norm(np.diff(window, axis=1), axis=2), axis=1)
-    counts = np.maximum(samples_per_span, np.ceil(polygon / sample_step_m).astype(np.intp))
+    # Capped: a wildly long control polygon (a diverged estimate) must cost bounded memory;
+    # past the cap the result is still a true local minimum, just not always the global one.
+    counts = np.clip(np.ceil(polygon / sample_step_m), samples_per_span, MAX_SAMPLES_PER_SPAN).astype(np.intp)
     t_grid = pieces.subdivide(counts)
     samples = curve.pieces.evaluate(t_grid)[0]
     d2 = np.sum((q[:, None, :] - samples[None, :, :]) ** 2, axis=2)  # (q, G)
