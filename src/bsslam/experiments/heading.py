@@ -31,15 +31,17 @@ def _one_run(seed: int, sigma0: float, updates: int, config: SLAMConfig, sim: Si
     start = truth + np.array([0.0, 0.0, rng.normal(0.0, sigma0)])
     slam = SplineSLAM(config, initial_pose=start, initial_covariance=np.diag([0.0, 0.0, sigma0 ** 2]))
     sig = []
-    for frame in data:
+    for k, frame in enumerate(data):
         slam.step(None, frame.scan)  # stationary: no motion, no prediction
-        sig.append(np.sqrt(slam.pose_covariance[2, 2]))
+        if k:  # the first scan only builds the map; updates start with the second
+            sig.append(np.sqrt(slam.pose_covariance[2, 2]))
     return np.array(sig)
 
 
 def heading_gain_experiment(sigmas_rad=DEFAULT_SIGMAS_RAD, runs: int = 50, updates: int = 30, seed: int = 0,
                             workers: int | None = None, progress=None) -> dict[float, np.ndarray]:
-    """Mean estimated σ_φ (rad) after each update (index 0 = after the first scan) per σ₀."""
+    """Mean estimated σ_φ (rad) after each update (index 0 = after the first update, i.e.
+    the second scan; the first builds the map) per σ₀."""
     sim = SimConfig()
     config = simulation_config(SLAMConfig(), sim)
     out = {}

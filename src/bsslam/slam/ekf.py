@@ -78,7 +78,8 @@ class StackedGain:
         P = state.P
         P -= Z @ Z.T
         state.symmetrize()
-        if np.any(np.diag(P)[:3] <= 0):
+        # exactly known components (zero variance, e.g. a fixed start) stay 0; negative is broken
+        if np.any(np.diag(P)[:3] < -1e-12):
             raise FilterError("pose covariance lost positive definiteness in the update")
 
 
