@@ -169,6 +169,34 @@ def evaluate(
         print_summary(metrics, f"{estimate} vs {reference}")
 
 
+@app.command()
+def bench(
+    data: Path = typer.Option(Path("../shared/data"), help="Folder searched for *.clf logs (with *.gt.txt references)."),
+    config_file: Optional[Path] = typer.Option(None, "--config", help="YAML configuration (the same for every log)."),
+    steps: Optional[int] = typer.Option(None, help="Only the first N scans of each log."),
+) -> None:
+    """Accuracy and speed on every log of a data folder, one configuration for all."""
+    from bsslam.bench import bench_log, find_logs
+
+    logs = find_logs(data)
+    if not logs:
+        fail(BsslamError(f"no *.clf logs under {data}"))
+    config = _load_config(config_file)
+    table = Table("log", "scans", "wall s", "ms/scan", "splines", "max state", "ATE m", "odometry ATE m",
+                  "relations (Intel)", title="bsslam bench")
+    for log in logs:
+        try:
+            with progress_bar(log.name, steps, "scans") as update:
+                row = bench_log(log, config, steps=steps, progress=update)
+        except BsslamError as exc:
+            console.print(f"[red]{log}: {exc}[/red]")
+            continue
+        table.add_row(row.log, str(row.scans), f"{row.wall_s:.1f}", f"{row.ms_per_scan:.1f}", str(row.splines),
+                      str(row.state_size), f"{row.ate_m:.3f}", f"{row.odometry_ate_m:.3f}", row.relations)
+    Console(width=max(Console().width, 150)).print(table)
+    console.print(f"peak memory (max RSS) of this process: {row.peak_rss_mb:.0f} MB")
+
+
 # --------------------------------------------------------------------------------------
 @experiment_app.command("fit-knots")
 def fit_knots(runs: int = typer.Option(50, help="Monte Carlo runs per spacing."),

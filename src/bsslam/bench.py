@@ -1,0 +1,65 @@
+"""Accuracy and speed on real logs: every CARMEN log in a data folder, one configuration.
+
+A benchmark, not a test: it prints figures (``bsslam bench``); nothing asserts on them.
+"""
+
+from __future__ import annotations
+
+import resource
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from bsslam.config import SLAMConfig
+from bsslam.eval import ate, relations_error
+from bsslam.io import open_dataset
+from bsslam.io.trajectory_file import read_trajectory
+from bsslam.pipeline import run_dataset
+
+#: The Intel relations file counts time from the Unix epoch; our Intel logs from the start.
+INTEL_RELATIONS_OFFSET_S = 976052857.337
+
+
+@dataclass(frozen=True)
+class BenchRow:
+    """One log's figures (NaN where there is no reference)."""
+
+    log: str
+    scans: int
+    wall_s: float
+    ms_per_scan: float
+    splines: int
+    state_size: int
+    ate_m: float
+    odometry_ate_m: float
+    relations: str
+    peak_rss_mb: float
+
+
+def find_logs(data_dir: Path) -> list[Path]:
+    """The ``*.clf`` logs below ``data_dir``, sorted."""
+    return sorted(Path(data_dir).glob("**/*.clf"))
+
+
+def bench_log(log: Path, config: SLAMConfig, steps: int | None = None, progress=None) -> BenchRow:
+    """Run one log and score it against ``<log>.gt.txt`` (and ``intel.relations`` for Intel)."""
+    data = open_dataset(log)
+    t0 = time.perf_counter()
+    result = run_dataset(data, config, steps=steps, progress=progress or (lambda d, t: None), point_stride=0)
+    wall = time.perf_counter() - t0
+    ref_path = log.with_suffix(".gt.txt")
+    nan = float("nan")
+    ate_m = odo_m = nan
+    if ref_path.exists():
+        ref = read_trajectory(ref_path)
+        ate_m = ate(result.estimate, ref)[0]
+        odo_m = ate(result.odometry, ref)[0]
+    rel = "-"
+    rel_path = log.parent / "intel.relations"
+    if log.name.startswith("intel") and rel_path.exists():
+        r = relations_error(result.estimate, rel_path, offset=INTEL_RELATIONS_OFFSET_S)
+        if r.used:
+            rel = f"{r.trans_mean_m:.3f}±{r.trans_std_m:.3f} m, {r.rot_mean_deg:.2f}±{r.rot_std_deg:.2f}° ({r.used})"
+    return BenchRow(log.name, result.steps, wall, 1000.0 * result.wall_time_s / max(result.steps, 1),
+                    len(result.map), int(result.state_sizes.max()) if result.steps else 3, ate_m, odo_m, rel,
+                    resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
