@@ -198,6 +198,26 @@ def bench(
 
 
 # --------------------------------------------------------------------------------------
+def _fit_experiment(kind: str, runs: int, seed: int, resolution_deg: float, sigma: float, out: Path) -> None:
+    """Shared body of fit-knots and fit-order: run, write CSV + PNG, print the table."""
+    from bsslam.experiments import fit
+    from bsslam.io.results import make_run_dir
+
+    experiment, writer, column, title = {
+        "knots": (fit.fit_knots_experiment, fit.write_fit_knots, "knot spacing (m)", "Fit error vs knot spacing (cubic)"),
+        "order": (fit.fit_order_experiment, fit.write_fit_order, "order", "Fit error vs order (knot spacing 2.92 m)"),
+    }[kind]
+    run_dir = make_run_dir(out)
+    with progress_bar(f"fit vs {kind}", None, "runs") as update:
+        results = experiment(runs=runs, seed=seed, resolution_deg=resolution_deg, sigma_m=sigma, progress=update)
+    writer(results, run_dir, seed=seed, resolution_deg=resolution_deg, sigma_m=sigma)
+    table = Table(column, "MSE (m²)", title=title)
+    for value, mse in results:
+        table.add_row(f"{value:.3g}", f"{mse:.3e}")
+    Console().print(table)
+    console.print(f"results in [bold]{run_dir}[/bold]")
+
+
 @experiment_app.command("fit-knots")
 def fit_knots(runs: int = typer.Option(50, help="Monte Carlo runs per spacing."),
               seed: int = typer.Option(0),
@@ -205,19 +225,7 @@ def fit_knots(runs: int = typer.Option(50, help="Monte Carlo runs per spacing.")
               sigma: float = typer.Option(0.005, help="Range noise σ (m)."),
               out: Path = typer.Option(Path("results/fit-knots"), help=OUT_HELP)) -> None:
     """Paper Fig. 2: mean squared range error of a cubic fit vs. knot spacing."""
-    from bsslam.experiments.fit import fit_knots_experiment, write_fit_knots
-    from bsslam.io.results import make_run_dir
-
-    run_dir = make_run_dir(out)
-    with progress_bar("fit vs knot spacing", None, "runs") as update:
-        results = fit_knots_experiment(runs=runs, seed=seed, resolution_deg=resolution_deg, sigma_m=sigma,
-                                       progress=update)
-    write_fit_knots(results, run_dir, seed=seed, resolution_deg=resolution_deg, sigma_m=sigma)
-    table = Table("knot spacing (m)", "MSE (m²)", title="Fit error vs knot spacing (cubic)")
-    for s, e in results:
-        table.add_row(f"{s:.3g}", f"{e:.3e}")
-    Console().print(table)
-    console.print(f"results in [bold]{run_dir}[/bold]")
+    _fit_experiment("knots", runs, seed, resolution_deg, sigma, out)
 
 
 @experiment_app.command("fit-order")
@@ -227,19 +235,7 @@ def fit_order(runs: int = typer.Option(50, help="Monte Carlo runs per order."),
               sigma: float = typer.Option(0.005, help="Range noise σ (m)."),
               out: Path = typer.Option(Path("results/fit-order"), help=OUT_HELP)) -> None:
     """Paper Fig. 3: mean squared range error of linear, quadratic and cubic fits."""
-    from bsslam.experiments.fit import fit_order_experiment, write_fit_order
-    from bsslam.io.results import make_run_dir
-
-    run_dir = make_run_dir(out)
-    with progress_bar("fit vs order", None, "runs") as update:
-        results = fit_order_experiment(runs=runs, seed=seed, resolution_deg=resolution_deg, sigma_m=sigma,
-                                       progress=update)
-    write_fit_order(results, run_dir, seed=seed, resolution_deg=resolution_deg, sigma_m=sigma)
-    table = Table("order", "MSE (m²)", title="Fit error vs order (knot spacing 2.92 m)")
-    for o, e in results:
-        table.add_row(str(o), f"{e:.3e}")
-    Console().print(table)
-    console.print(f"results in [bold]{run_dir}[/bold]")
+    _fit_experiment("order", runs, seed, resolution_deg, sigma, out)
 
 
 class Variant(str, Enum):
