@@ -17,12 +17,12 @@ from bsslam.scan import LaserScan, ObservedSpline, extract_splines
 from bsslam.scan.observed import fit_to_noise
 from bsslam.slam.association import Match, associate
 from bsslam.slam.ekf import StackedGain, gate_threshold, innovation_variances
-from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
+from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block, refine_for_map
 from bsslam.slam.features import MapSpline, SplineFeature
 from bsslam.slam.motion import motion_noise, predict
 from bsslam.slam.observation import laser_pose, predict_beams
 from bsslam.slam.state import JointState
-from bsslam.spline import closest_point, extend_curve
+from bsslam.spline import FitResult, closest_point, extend_curve
 from bsslam.trajectory import wrap_angle
 
 
@@ -411,9 +411,12 @@ class SplineSLAM:
                 fit, _ = fit_to_noise(obs.points[sel], cfg)
             except FitError:
                 return False
-            phi, knots = fit.phi, fit.curve.knots
         else:
-            phi, knots = obs.phi, obs.curve.knots
+            fit = FitResult(obs.curve, obs.phi, obs.params)
+        if cfg.mapping.fit_bias_sigmas is not None:
+            fit = refine_for_map(fit, obs.points[sel], cfg.observation.sigma_range_m,
+                                 cfg.spline.min_knot_spacing_m, cfg.mapping.fit_bias_sigmas)
+        phi, knots = fit.phi, fit.curve.knots
         bp = beam_points(self.state.pose, offset, obs.angles[sel], obs.ranges[sel])
         block = new_feature_block(phi, bp)
         n = phi.shape[0]
