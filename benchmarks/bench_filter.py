@@ -67,7 +67,7 @@ def main() -> None:
         prev = fr.odometry
     prof.disable()
     print(f"\nprofile of the last {len(frames) - k} scans (state size {slam2.state_size}):")
-    pstats.Stats(prof).sort_stats("tottime").print_stats(12)
+    pstats.Stats(prof).sort_stats("cumulative").print_stats(22)
 
 
 if __name__ == "__main__":

@@ -47,38 +47,57 @@ def control_point_gap(a: BSplineCurve, b: BSplineCurve) -> float:
     return float(np.sqrt(np.min(np.einsum("ijk,ijk->ij", d, d))))
 
 
+def _decide(observed: BSplineCurve, mapped: BSplineCurve, feature_id: int, match_distance_m: float,
+            t_ends: np.ndarray, u_ends: np.ndarray) -> Match | None:
+    """Fig. 6 of the paper for one pair, given the map parameters ``t_ends`` (2,) closest to
+    the observed spline's ends and the observed parameters ``u_ends`` (2,) to use for them
+    (the observed ends, or — where ``t`` is an end of the map spline — the observed point
+    closest to that map end)."""
+    lo_m, hi_m = mapped.domain
+    tol = 1e-6 * max(1.0, hi_m - lo_m)
+    t_ini, t_fin = float(t_ends[0]), float(t_ends[1])
+    u_ini, u_fin = float(u_ends[0]), float(u_ends[1])
+    if not (t_fin > t_ini and u_fin > u_ini):
+        return None  # opposite orientation (far side of a wall) or no overlap
+    gap = observed.evaluate(np.array([u_ini, u_fin])) - mapped.evaluate(np.array([t_ini, t_fin]))
+    if np.max(np.hypot(gap[:, 0], gap[:, 1])) > match_distance_m:
+        return None
+    return Match(feature_id, u_ini, u_fin, t_ini, t_fin, at_lo=t_ini <= lo_m + tol, at_hi=t_fin >= hi_m - tol)
+
+
+def _at_end(t: np.ndarray, curve: BSplineCurve) -> np.ndarray:
+    lo, hi = curve.domain
+    tol = 1e-6 * max(1.0, hi - lo)
+    return (t <= lo + tol) | (t >= hi - tol)
+
+
 def match_pair(observed: BSplineCurve, mapped: BSplineCurve, feature_id: int,
                match_distance_m: float) -> Match | None:
     """Fig. 6 of the paper for one (observed, map) pair; None when they do not match."""
-    lo_o, hi_o = observed.domain
-    lo_m, hi_m = mapped.domain
-    tol = 1e-6 * max(1.0, hi_m - lo_m)
-    ends_o = observed.evaluate(np.array([lo_o, hi_o]))
-    t_ends, _, _ = closest_point(mapped, ends_o)
-    t_ini, t_fin = float(t_ends[0]), float(t_ends[1])
-    at_lo_ini, at_hi_ini = t_ini <= lo_m + tol, t_ini >= hi_m - tol
-    at_lo_fin, at_hi_fin = t_fin <= lo_m + tol, t_fin >= hi_m - tol
-    u_ini, u_fin = lo_o, hi_o
-    # When the observed end lies beyond the map spline, the correspondence starts at the map
-    # spline's end instead: find the observed point closest to it.
-    requery = []
-    if at_lo_ini or at_hi_ini:
-        requery.append(0)
-    if at_lo_fin or at_hi_fin:
-        requery.append(1)
-    if requery:
-        u_new, _, _ = closest_point(observed, mapped.evaluate(np.array([t_ends[i] for i in requery])))
-        for i, u in zip(requery, u_new):
-            if i == 0:
-                u_ini = float(u)
-            else:
-                u_fin = float(u)
-    if not (t_fin > t_ini and u_fin > u_ini):
-        return None  # opposite orientation (far side of a wall) or no overlap
-    pts = observed.evaluate(np.array([u_ini, u_fin])) - mapped.evaluate(np.array([t_ini, t_fin]))
-    if np.max(np.hypot(pts[:, 0], pts[:, 1])) > match_distance_m:
-        return None
-    return Match(feature_id, u_ini, u_fin, t_ini, t_fin, at_lo=at_lo_ini, at_hi=at_hi_fin)
+    return _match_many([observed], mapped, feature_id, np.array([match_distance_m]))[0]
+
+
+def _match_many(observed: list[BSplineCurve], mapped: BSplineCurve, feature_id: int,
+                match_distance_m: np.ndarray) -> list[Match | None]:
+    """:func:`match_pair` of several observed splines against one map spline, with one
+    closest-point query for all their end points."""
+    ends = np.vstack([o.evaluate(np.array(o.domain)) for o in observed])          # (2k, 2)
+    t_ends, _, _ = closest_point(mapped, ends)
+    t_ends = t_ends.reshape(-1, 2)
+    requery = _at_end(t_ends, mapped)                                             # (k, 2)
+    map_ends = mapped.evaluate(t_ends[requery]) if requery.any() else np.empty((0, 2))
+    out, used = [], 0
+    for i, obs in enumerate(observed):
+        u_ends = np.array(obs.domain, dtype=float)
+        n_q = int(requery[i].sum())
+        if n_q:
+            # the observed end lies beyond the map spline: the correspondence starts at the map
+            # spline's end instead, at the observed point closest to it
+            u_new, _, _ = closest_point(obs, map_ends[used:used + n_q])
+            u_ends[requery[i]] = u_new
+            used += n_q
+        out.append(_decide(obs, mapped, feature_id, float(match_distance_m[i]), t_ends[i], u_ends))
+    return out
 
 
 def associate(observed: list[BSplineCurve], mapped: dict[int, BSplineCurve], gate_m,
@@ -93,24 +112,22 @@ def associate(observed: list[BSplineCurve], mapped: dict[int, BSplineCurve], gat
     Returns:
         for each observed spline, its matches sorted by ``u_ini``.
     """
-    boxes = {fid: c.bbox() for fid, c in mapped.items()}
     gates = np.broadcast_to(np.asarray(gate_m, dtype=float), (len(observed),))
     deltas = np.broadcast_to(np.asarray(match_distance_m, dtype=float), (len(observed),))
-    result: list[list[Match]] = []
-    for obs, gate_m, match_distance_m in zip(observed, gates, deltas):
-        ob = obs.bbox()
-        matches = []
-        for fid, curve in mapped.items():
-            b = boxes[fid]
-            # bounding boxes farther apart than the gate cannot pass it
-            if (b[0] - ob[2] > gate_m or ob[0] - b[2] > gate_m or
-                    b[1] - ob[3] > gate_m or ob[1] - b[3] > gate_m):
-                continue
-            if control_point_gap(obs, curve) > gate_m:
-                continue
-            m = match_pair(obs, curve, fid, match_distance_m)
+    obs_boxes = [o.bbox() for o in observed]
+    result: list[list[Match]] = [[] for _ in observed]
+    for fid, curve in mapped.items():
+        b = curve.bbox()
+        # bounding boxes farther apart than the gate cannot pass it; then the control points
+        near = [i for i, ob in enumerate(obs_boxes)
+                if not (b[0] - ob[2] > gates[i] or ob[0] - b[2] > gates[i] or
+                        b[1] - ob[3] > gates[i] or ob[1] - b[3] > gates[i])
+                and control_point_gap(observed[i], curve) <= gates[i]]
+        if not near:
+            continue
+        for i, m in zip(near, _match_many([observed[i] for i in near], curve, fid, deltas[near])):
             if m is not None:
-                matches.append(m)
+                result[i].append(m)
+    for matches in result:
         matches.sort(key=lambda m: m.u_ini)
-        result.append(matches)
     return result

@@ -5,8 +5,8 @@ so everything is built from those columns (``cols``): ``P Hᵀ = P[:, cols] H_c�
 covariance correction ``P ← P − P Hᵀ S⁻¹ H P`` is applied as a symmetric low-rank update
 ``P ← P − Z Zᵀ`` with rank min(beams, touched columns): that product is the only O(n²)
 work of a scan. The Joseph form would cost O(n³) on the full state; instead the result is
-symmetrised and its pose block checked, which keeps P symmetric and positive definite
-(the tests check it on every simulated run).
+exactly symmetric (``Z @ Z.T`` is a symmetric rank-k product) and its pose block is
+checked; the tests check symmetry and positive definiteness on every simulated run.
 """
 
 from __future__ import annotations
@@ -76,8 +76,7 @@ class StackedGain:
             Y = qr(Y, mode="r", check_finite=False)[0]   # YᵀY = R_yᵀ R_y
         Z = self.P_c @ Y.T
         P = state.P
-        P -= Z @ Z.T
-        state.symmetrize()
+        P -= Z @ Z.T  # numpy computes Z @ Z.T with syrk: exactly symmetric, so P stays symmetric
         # exactly known components (zero variance, e.g. a fixed start) stay 0; negative is broken
         if np.any(np.diag(P)[:3] < -1e-12):
             raise FilterError("pose covariance lost positive definiteness in the update")

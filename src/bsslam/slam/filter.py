@@ -291,16 +291,23 @@ class SplineSLAM:
                               np.concatenate(row_in_group), np.concatenate(hit_t))
 
     @staticmethod
-    def _keep_rows(groups: list[_BeamGroup], lin: _Linearization, keep: np.ndarray) -> list[_BeamGroup]:
-        """The beam groups restricted to the linearised rows in ``keep``, Newton restarted from
-        their last hit parameters."""
+    def _select(groups: list[_BeamGroup], lin: _Linearization, keep: np.ndarray
+                ) -> tuple[list[_BeamGroup], _Linearization]:
+        """The beam groups and their linearisation restricted to the rows in ``keep``
+        (consistently renumbered), Newton restarted from the rows' last hit parameters."""
         out = []
         for gi, g in enumerate(groups):
             sel = keep & (lin.owner == gi)
             if sel.any():
                 rows = lin.row_in_group[sel]
                 out.append(_BeamGroup(g.feature, g.bearings[rows], g.ranges[rows], lin.hit_t[sel]))
-        return out
+        # rows are ordered by group, then by beam: renumber groups by rank, rows by position
+        owners = lin.owner[keep]
+        kept_groups, first = np.unique(owners, return_index=True)
+        new_owner = np.searchsorted(kept_groups, owners)
+        new_row = np.arange(owners.shape[0]) - first[new_owner]
+        sub = _Linearization(lin.cols, lin.H_c[keep], lin.residual[keep], new_owner, new_row, lin.hit_t[keep])
+        return out, sub
 
     def _update(self, observed, matches, offset, report: StepReport) -> None:
         """Iterated EKF update (Gauss–Newton on the mean, one covariance update at the end).
@@ -329,10 +336,7 @@ class SplineSLAM:
         report.drop("gate", int((~coarse).sum()))
         if not coarse.any():
             return
-        groups = self._keep_rows(groups, lin, coarse)
-        lin = self._linearize(groups, x0, offset, None)
-        if lin is None:
-            return
+        groups, lin = self._select(groups, lin, coarse)
         gain = StackedGain(P, lin.cols, lin.H_c, R)
         x_i = x0 + gain.correction(lin.residual)[0]
         lin = self._linearize(groups, x_i, offset, None)
@@ -342,11 +346,13 @@ class SplineSLAM:
         report.drop("gate", int((~fine).sum()))
         if not fine.any():
             return
-        groups = self._keep_rows(groups, lin, fine)
-        for _ in range(self.config.observation.iterations):
-            lin = self._linearize(groups, x_i, offset, None)
-            if lin is None:
-                return
+        groups, lin = self._select(groups, lin, fine)
+        for it in range(self.config.observation.iterations):
+            if it:
+                lin = self._linearize(groups, x_i, offset, None)
+                if lin is None:
+                    return
+                groups, lin = self._select(groups, lin, np.ones(lin.residual.shape[0], dtype=bool))
             gain = StackedGain(P, lin.cols, lin.H_c, R)
             # IEKF: ν_i = z − h(x_i) − H_i (x₀ − x_i)
             nu = lin.residual - lin.H_c @ (x0[lin.cols] - x_i[lin.cols])
@@ -354,8 +360,7 @@ class SplineSLAM:
             x_new = x0 + dx
             step = np.abs(x_new[:3] - x_i[:3])
             x_i = x_new
-            groups = self._keep_rows(groups, lin, np.ones(lin.residual.shape[0], dtype=bool))
-            if step[0] < 1e-5 and step[1] < 1e-5 and step[2] < 1e-6:
+            if step[0] < 1e-4 and step[1] < 1e-4 and step[2] < 1e-5:  # 0.1 mm, 0.01 mrad: far below σ
                 break
         self.state.x[:] = x_i
         gain.update_covariance(self.state)
@@ -457,6 +462,7 @@ class SplineSLAM:
         new_idx = self.state.append(block.mean, cross, cov)
         self._transform_block(f.idx_x, ext.T)
         self._transform_block(f.idx_y, ext.T)
+        self.state.symmetrize()  # T P Tᵀ through rows then columns: equal up to rounding only
         new_x, new_y = new_idx[:m], new_idx[m:]
         if side == "right":
             f.idx_x, f.idx_y = np.concatenate([f.idx_x, new_x]), np.concatenate([f.idx_y, new_y])
