@@ -27,26 +27,19 @@ class SplineConfig:
     Attributes:
         degree: polynomial degree p of every spline (order κ = p + 1); 1 … 4.
         knot_spacing_m: target distance ρ between consecutive knots along the curve (m).
-        min_knot_spacing_m: a segment whose fit leaves residuals above
-            ``refine_rms_factor`` × the range σ is refitted with half the spacing, down to
-            this value (m). A wall that bends faster than ρ allows (a 0.5 m-radius corner at
-            ρ = 1 m leaves 1–3 cm of bias) would otherwise enter the map biased, and a biased
-            map makes the filter optimistic. Equal to ``knot_spacing_m`` disables refinement.
-        refine_rms_factor: the residual RMS, in units of ``observation.sigma_range_m``, above
-            which a fit is refined.
+        min_knot_spacing_m: the finest spacing a spline entering the map may be refined
+            to where a finer fit shows it biased (``mapping.fit_bias_sigmas``) (m).
     """
 
     degree: int = 3
     knot_spacing_m: float = 1.0
     min_knot_spacing_m: float = 0.25
-    refine_rms_factor: float = 1.5
 
     def __post_init__(self) -> None:
         _check(1 <= self.degree <= 4, f"spline.degree must be 1..4, got {self.degree}")
         _check(self.knot_spacing_m > 0, "spline.knot_spacing_m must be > 0")
         _check(0 < self.min_knot_spacing_m <= self.knot_spacing_m,
                "spline.min_knot_spacing_m must be in (0, knot_spacing_m]")
-        _check(self.refine_rms_factor > 0, "spline.refine_rms_factor must be > 0")
 
 
 @dataclass(frozen=True)

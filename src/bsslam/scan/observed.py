@@ -11,7 +11,7 @@ from bsslam.config import SLAMConfig
 from bsslam.errors import FitError
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.scan.segment import beams_to_points, segment_points_counted, valid_beams
-from bsslam.spline import BSplineCurve, FitResult, fit_curve
+from bsslam.spline import BSplineCurve, fit_curve
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,33 +53,6 @@ class ScanFeatures:
     counts: dict[str, int] = field(default_factory=dict)
 
 
-def fit_to_noise(points: np.ndarray, config: SLAMConfig) -> tuple[FitResult, int]:
-    """Fit ``points`` (k, 2) at the configured knot spacing, halving it while the residual
-    RMS exceeds ``refine_rms_factor`` × the range σ and the spacing stays ≥ the minimum.
-
-    Returns:
-        the fit and how many times the spacing was halved.
-    Raises:
-        FitError: no spline fits the points.
-    """
-    sc = config.spline
-    limit = sc.refine_rms_factor * config.observation.sigma_range_m
-    spacing = sc.knot_spacing_m
-    fit = fit_curve(points, sc.degree, spacing)
-    halvings = 0
-    while spacing / 2 >= sc.min_knot_spacing_m:
-        resid = fit.curve.evaluate(fit.params) - points
-        if np.sqrt(np.mean(np.einsum("ij,ij->i", resid, resid))) <= limit:
-            break
-        spacing /= 2
-        try:
-            fit = fit_curve(points, sc.degree, spacing)
-        except FitError:
-            break
-        halvings += 1
-    return fit, halvings
-
-
 def extract_splines(scan: LaserScan, config: SLAMConfig) -> ScanFeatures:
     """Valid beams → points → segments → one least-squares spline per segment.
 
@@ -95,18 +68,16 @@ def extract_splines(scan: LaserScan, config: SLAMConfig) -> ScanFeatures:
     segments, segment_counts = segment_points_counted(points, config.segmentation, beam_index=beam_indices)
     counts.update(segment_counts)
     splines = []
-    fit_failed = refined = 0
+    fit_failed = 0
     for rows in segments:  # a handful of segments per scan; the fit itself is vectorised
         try:
-            fit, halvings = fit_to_noise(points[rows], config)
+            fit = fit_curve(points[rows], config.spline.degree, config.spline.knot_spacing_m)
         except FitError:
             fit_failed += 1
             continue
-        refined += halvings > 0
         splines.append(ObservedSpline(curve=fit.curve, phi=fit.phi, beam_indices=beam_indices[rows],
                                       params=fit.params, points=points[rows], ranges=ranges[rows],
                                       angles=angles[rows]))
     counts["fit_failed"] = fit_failed
-    counts["refined_fits"] = refined
     counts["splines"] = len(splines)
     return ScanFeatures(splines=splines, counts=counts)

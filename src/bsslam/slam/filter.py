@@ -14,15 +14,15 @@ import numpy as np
 from bsslam.config import SLAMConfig
 from bsslam.errors import FilterError, FitError, InputError
 from bsslam.scan import LaserScan, ObservedSpline, extract_splines
-from bsslam.scan.observed import fit_to_noise
+from bsslam.scan.refine import refine_for_map
 from bsslam.slam.association import Match, associate
 from bsslam.slam.ekf import StackedGain, gate_threshold, innovation_variances
-from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block, refine_for_map
+from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
 from bsslam.slam.features import MapSpline, SplineFeature
 from bsslam.slam.motion import motion_noise, predict
 from bsslam.slam.observation import laser_pose, predict_beams
 from bsslam.slam.state import JointState
-from bsslam.spline import FitResult, closest_point, extend_curve
+from bsslam.spline import FitResult, closest_point, extend_curve, fit_curve
 from bsslam.trajectory import wrap_angle
 
 
@@ -413,7 +413,7 @@ class SplineSLAM:
         cfg = self.config
         if refit:
             try:
-                fit, _ = fit_to_noise(obs.points[sel], cfg)
+                fit = fit_curve(obs.points[sel], cfg.spline.degree, cfg.spline.knot_spacing_m)
             except FitError:
                 return False
         else:
