@@ -29,17 +29,23 @@ class SplineConfig:
         knot_spacing_m: target distance ρ between consecutive knots along the curve (m).
         min_knot_spacing_m: the finest spacing a spline entering the map may be refined
             to where a finer fit shows it biased (``mapping.fit_bias_sigmas``) (m).
+        max_noise_gain: fits use fewer spans while some control point would amplify range
+            noise more than this (largest row norm of Φ; dimensionless). Well-posed fits stay
+            below ~2.5; nearly unsupported basis functions reach 10⁶–10¹⁰ and, in the state,
+            made the covariance indefinite within tens of scans at ρ = 0.2 m.
     """
 
     degree: int = 3
     knot_spacing_m: float = 1.0
     min_knot_spacing_m: float = 0.25
+    max_noise_gain: float = 10.0
 
     def __post_init__(self) -> None:
         _check(1 <= self.degree <= 4, f"spline.degree must be 1..4, got {self.degree}")
         _check(self.knot_spacing_m > 0, "spline.knot_spacing_m must be > 0")
         _check(0 < self.min_knot_spacing_m <= self.knot_spacing_m,
                "spline.min_knot_spacing_m must be in (0, knot_spacing_m]")
+        _check(self.max_noise_gain > 1.0, "spline.max_noise_gain must be > 1")
 
 
 @dataclass(frozen=True)

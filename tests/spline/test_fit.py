@@ -106,3 +106,21 @@ def test_fitted_curve_passes_through_end_region_and_follows_the_wall():
     # Every clean wall point lies within a few noise σ of the fitted curve.
     gaps = np.min(np.linalg.norm(clean[:, None, :] - dense[None, :, :], axis=2), axis=1)
     assert gaps.max() < 0.01
+
+
+def test_noise_gain_bound_rejects_barely_supported_basis_functions():
+    """Points crowded at one end leave the last basis function nearly unsupported: the plain
+    fit accepts it with a huge noise gain; with a bound the fit uses fewer spans instead."""
+    import numpy as np
+
+    from bsslam.spline import fit_curve
+
+    x = np.concatenate([np.linspace(0.0, 1.0, 40), [1.999]])  # one lonely point at the far end
+    pts = np.column_stack([x, np.zeros_like(x)])
+    t = x.copy()
+    loose = fit_curve(pts, 3, 0.25, params=t)
+    gain = np.sqrt((loose.phi ** 2).sum(axis=1)).max()
+    assert gain > 10.0
+    bounded = fit_curve(pts, 3, 0.25, params=t, max_noise_gain=10.0)
+    assert bounded.curve.n_control < loose.curve.n_control
+    assert np.sqrt((bounded.phi ** 2).sum(axis=1)).max() <= 10.0

@@ -71,7 +71,8 @@ def extract_splines(scan: LaserScan, config: SLAMConfig) -> ScanFeatures:
     fit_failed = 0
     for rows in segments:  # a handful of segments per scan; the fit itself is vectorised
         try:
-            fit = fit_curve(points[rows], config.spline.degree, config.spline.knot_spacing_m)
+            fit = fit_curve(points[rows], config.spline.degree, config.spline.knot_spacing_m,
+                            max_noise_gain=config.spline.max_noise_gain)
         except FitError:
             fit_failed += 1
             continue

@@ -39,7 +39,7 @@ def fit_bias_scores(coarse: FitResult, fine: FitResult, points: np.ndarray, sigm
 
 
 def refine_for_map(fit: FitResult, points: np.ndarray, sigma_range: float, min_spacing_m: float,
-                   max_score: float) -> FitResult:
+                   max_score: float, *, max_noise_gain: float | None = None) -> FitResult:
     """Halve the knot spacing of a fit that is to enter the map while the finer fit shows
     the coarser one biased somewhere (:func:`fit_bias_scores` above ``max_score``).
 
@@ -56,7 +56,8 @@ def refine_for_map(fit: FitResult, points: np.ndarray, sigma_range: float, min_s
         if spacing < min_spacing_m:
             return fit
         try:
-            fine = fit_curve(points, deg, spacing * (1.0 + 1e-9), params=fit.params)
+            fine = fit_curve(points, deg, spacing * (1.0 + 1e-9), params=fit.params,
+                             max_noise_gain=max_noise_gain)
         except FitError:
             return fit
         if fine.curve.n_control <= fit.curve.n_control:

@@ -413,14 +413,16 @@ class SplineSLAM:
         cfg = self.config
         if refit:
             try:
-                fit = fit_curve(obs.points[sel], cfg.spline.degree, cfg.spline.knot_spacing_m)
+                fit = fit_curve(obs.points[sel], cfg.spline.degree, cfg.spline.knot_spacing_m,
+                                max_noise_gain=cfg.spline.max_noise_gain)
             except FitError:
                 return False
         else:
             fit = FitResult(obs.curve, obs.phi, obs.params)
         if cfg.mapping.fit_bias_sigmas is not None:
             fit = refine_for_map(fit, obs.points[sel], cfg.observation.sigma_range_m,
-                                 cfg.spline.min_knot_spacing_m, cfg.mapping.fit_bias_sigmas)
+                                 cfg.spline.min_knot_spacing_m, cfg.mapping.fit_bias_sigmas,
+                                 max_noise_gain=cfg.spline.max_noise_gain)
         phi, knots = fit.phi, fit.curve.knots
         bp = beam_points(self.state.pose, offset, obs.angles[sel], obs.ranges[sel])
         block = new_feature_block(phi, bp)
@@ -445,7 +447,8 @@ class SplineSLAM:
         params = hi + (u - match.u_fin) if side == "right" else lo - (match.u_ini - u)
         bp = beam_points(self.state.pose, offset, obs.angles[sel], obs.ranges[sel])
         try:
-            ext = extend_curve(curve, side, bp.points, params, self.config.spline.knot_spacing_m)
+            ext = extend_curve(curve, side, bp.points, params, self.config.spline.knot_spacing_m,
+                               max_noise_gain=self.config.spline.max_noise_gain)
         except FitError:
             return False
         _, _, dist = closest_point(ext.curve, bp.points)

@@ -125,7 +125,8 @@ def extended_knots(knots: np.ndarray, degree: int, side: str, end: float, spans:
     return np.concatenate([np.full(degree + 1, end), interior, [old_start], knots[degree + 1 :]])
 
 
-def extend_curve(curve: BSplineCurve, side: str, points: object, params: object, spacing_m: float) -> Extension:
+def extend_curve(curve: BSplineCurve, side: str, points: object, params: object, spacing_m: float, *,
+                 max_noise_gain: float | None = None) -> Extension:
     """Append control points fitted to new data beyond one end (spec §8.2).
 
     Args:
@@ -135,6 +136,7 @@ def extend_curve(curve: BSplineCurve, side: str, points: object, params: object,
         params: (k,) their parameters, continuing the curve's arc length: all > the
             domain end for ``'right'``, all < the domain start for ``'left'`` (m).
         spacing_m: knot spacing ρ (m) for the new spans.
+        max_noise_gain: as in :func:`fit_curve`, for the least-squares map of the new points.
 
     Returns:
         Extension. The new domain end is the outermost parameter; the number of new
@@ -175,7 +177,7 @@ def extend_curve(curve: BSplineCurve, side: str, points: object, params: object,
         if not satisfies_schoenberg_whitney(knots, p, distinct, slice(new_cols[0], new_cols[-1] + 1)):
             continue
         colloc = collocation_matrix(knots, p, t)
-        g = least_squares_operator(colloc[:, new_cols])
+        g = least_squares_operator(colloc[:, new_cols], max_noise_gain)
         if g is None:
             continue
         psi = np.zeros((n_old + spans, n_old + k))

@@ -73,8 +73,15 @@ def satisfies_schoenberg_whitney(
     return bool(np.all(matched <= last))
 
 
-def least_squares_operator(collocation: np.ndarray) -> np.ndarray | None:
-    """``(BᵀB)⁻¹Bᵀ`` for an (m, n) collocation matrix B, by QR; None if B is rank deficient."""
+def least_squares_operator(collocation: np.ndarray, max_noise_gain: float | None = None) -> np.ndarray | None:
+    """``(BᵀB)⁻¹Bᵀ`` for an (m, n) collocation matrix B, by QR; None if B is rank deficient
+    or, with ``max_noise_gain``, if some row of the result has a larger 2-norm.
+
+    A row's norm is how much it amplifies independent noise on the data into its control
+    point (σ_cp = norm · σ_data). Well-posed fits stay below about 2.5; a basis function
+    barely touched by data passes the rank test yet amplifies noise by 10⁶ or more, and such
+    a control point would wreck a covariance it enters.
+    """
     m, n = collocation.shape
     if m < n:
         return None
@@ -82,7 +89,10 @@ def least_squares_operator(collocation: np.ndarray) -> np.ndarray | None:
     diag = np.abs(np.diag(r))
     if diag.min() <= _RANK_TOLERANCE * diag.max():
         return None
-    return scipy.linalg.solve_triangular(r, q.T, check_finite=False)
+    phi = scipy.linalg.solve_triangular(r, q.T, check_finite=False)
+    if max_noise_gain is not None and np.max(np.einsum("ij,ij->i", phi, phi)) > max_noise_gain ** 2:
+        return None
+    return phi
 
 
 def check_params(params: object, m: int) -> np.ndarray:
@@ -112,7 +122,8 @@ class FitResult:
     params: np.ndarray
 
 
-def fit_curve(points: object, degree: int, spacing_m: float, params: object = None) -> FitResult:
+def fit_curve(points: object, degree: int, spacing_m: float, params: object = None, *,
+              max_noise_gain: float | None = None) -> FitResult:
     """Least-squares clamped B-spline through an ordered point run (spec §2).
 
     Args:
@@ -120,6 +131,8 @@ def fit_curve(points: object, degree: int, spacing_m: float, params: object = No
         degree: polynomial degree p (order κ = p + 1).
         spacing_m: target knot spacing ρ (m).
         params: optional (m,) non-decreasing parameters; default chord length from 0.
+        max_noise_gain: if given, a number of spans whose Φ amplifies data noise more than
+            this (largest row 2-norm) counts as ill-posed, like a Schoenberg–Whitney failure.
 
     Returns:
         FitResult on ``clamped_knots(params[-1] − params[0], spacing_m, degree,
@@ -148,7 +161,7 @@ def fit_curve(points: object, degree: int, spacing_m: float, params: object = No
         knots[-degree - 1 :] = t[-1]  # exactly the last parameter, not start + length
         if not satisfies_schoenberg_whitney(knots, degree, distinct):
             continue
-        phi = least_squares_operator(collocation_matrix(knots, degree, t))
+        phi = least_squares_operator(collocation_matrix(knots, degree, t), max_noise_gain)
         if phi is None:
             continue
         curve = BSplineCurve.unchecked(phi @ pts, knots, degree)
