@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from bsslam.config import SLAMConfig
-from bsslam.eval import ate
+from bsslam.eval import ate, pose_errors
 from bsslam.io.config_file import write_config
 from bsslam.io.grid import render_grid, write_grid
 from bsslam.io.map_file import write_map_json
@@ -57,8 +57,6 @@ def summarize(result: RunResult, reference: Trajectory | None = None, exact_refe
         odo_rmse, _, _ = ate(result.odometry, ref)
         summary["odometry_ate_m"] = round(float(odo_rmse), 5)
         if exact_reference and len(ref) == len(est):
-            from bsslam.experiments.consistency import pose_errors
-
             err = pose_errors(est, ref)
             summary["final_position_error_m"] = round(float(np.hypot(*err.errors[-1, :2])), 5)
             summary["final_heading_error_rad"] = round(float(err.errors[-1, 2]), 6)

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from bsslam.config import SLAMConfig
-from bsslam.eval import ate, chi2_band
-from bsslam.experiments.consistency import pose_errors, simulation_config, variant_config
+from bsslam.eval import ate, chi2_band, pose_errors
+from bsslam.experiments.consistency import simulation_config, variant_config
 from bsslam.pipeline import run_dataset
 from bsslam.sim import SimConfig, get_world, run_monte_carlo, simulate
 

@@ -3,10 +3,10 @@ et al. 2009, NEES with its χ² band, and :func:`evaluate_files` combining them 
 
 from bsslam.eval.alignment import align_rigid_2d
 from bsslam.eval.association import associate
-from bsslam.eval.consistency import chi2_band, nees
+from bsslam.eval.consistency import RunErrors, chi2_band, nees, pose_errors
 from bsslam.eval.evaluate_files import evaluate_files
 from bsslam.eval.relations import RelationsError, relations_error
 from bsslam.eval.trajectory_error import RelativePoseError, ate, rpe
 
-__all__ = ["align_rigid_2d", "associate", "ate", "chi2_band", "evaluate_files", "nees",
+__all__ = ["align_rigid_2d", "associate", "ate", "chi2_band", "evaluate_files", "nees", "pose_errors", "RunErrors",
            "RelationsError", "relations_error", "RelativePoseError", "rpe"]

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from bsslam.errors import InputError
-from bsslam.trajectory import wrap_angle
+from bsslam.trajectory import Trajectory, wrap_angle
 
 
 def nees(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
@@ -48,3 +50,27 @@ def chi2_band(dof: int, runs: int, probability: float = 0.95) -> tuple[float, fl
     tail = 0.5 * (1.0 - probability)
     total = dof * runs
     return float(stats.chi2.ppf(tail, total) / runs), float(stats.chi2.ppf(1.0 - tail, total) / runs)
+
+
+@dataclass(frozen=True)
+class RunErrors:
+    """Per-step pose errors of one run: errors (N, 3), sigmas (N, 3), nees (N,)."""
+
+    errors: np.ndarray
+    sigmas: np.ndarray
+    nees: np.ndarray
+
+
+def pose_errors(estimate: Trajectory, truth: Trajectory) -> RunErrors:
+    """Errors true − estimated (angle wrapped), their σ and NEES for matched trajectories.
+
+    The first pose defines the map frame and has zero covariance: its NEES is NaN.
+    """
+    e = truth.poses - estimate.poses
+    e[:, 2] = wrap_angle(e[:, 2])
+    cov = estimate.covariances
+    sig = np.sqrt(np.maximum(np.einsum("nii->ni", cov), 0.0))
+    value = np.full(e.shape[0], np.nan)
+    defined = np.linalg.det(cov) > 0
+    value[defined] = nees(e[defined], cov[defined])
+    return RunErrors(e, sig, value)

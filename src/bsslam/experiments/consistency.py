@@ -17,10 +17,9 @@ import numpy as np
 
 from bsslam.config import SLAMConfig
 from bsslam.errors import ConfigError
-from bsslam.eval import chi2_band, nees
+from bsslam.eval import RunErrors, chi2_band, pose_errors
 from bsslam.pipeline import run_dataset
 from bsslam.sim import SimConfig, get_world, run_monte_carlo, simulate
-from bsslam.trajectory import wrap_angle
 
 VARIANTS = ("no-extension", "inflated-r", "extension")
 
@@ -50,30 +49,6 @@ def simulation_config(config: SLAMConfig, sim: SimConfig | None = None) -> SLAMC
         motion=sim.motion,
         observation=dataclasses.replace(config.observation, sigma_range_m=sim.sigma_range_m),
     )
-
-
-@dataclass(frozen=True)
-class RunErrors:
-    """Per-step pose errors of one run: errors (N, 3), sigmas (N, 3), nees (N,)."""
-
-    errors: np.ndarray
-    sigmas: np.ndarray
-    nees: np.ndarray
-
-
-def pose_errors(estimate, truth) -> RunErrors:
-    """Errors true − estimated (angle wrapped), their σ and NEES for matched trajectories.
-
-    The first pose defines the map frame and has zero covariance: its NEES is NaN.
-    """
-    e = truth.poses - estimate.poses
-    e[:, 2] = wrap_angle(e[:, 2])
-    cov = estimate.covariances
-    sig = np.sqrt(np.maximum(np.einsum("nii->ni", cov), 0.0))
-    value = np.full(e.shape[0], np.nan)
-    defined = np.linalg.det(cov) > 0
-    value[defined] = nees(e[defined], cov[defined])
-    return RunErrors(e, sig, value)
 
 
 def _one_run(seed: int, world: str, steps: int | None, config: SLAMConfig, sim: SimConfig) -> RunErrors:
