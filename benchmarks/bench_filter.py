@@ -21,7 +21,7 @@ from bsslam.config import MappingConfig, SLAMConfig, SplineConfig  # noqa: E402
 from bsslam.experiments.consistency import simulation_config  # noqa: E402
 from bsslam.sim import SimConfig, get_world, simulate  # noqa: E402
 from bsslam.slam import SplineSLAM  # noqa: E402
-from bsslam.slam.motion import relative  # noqa: E402
+from bsslam.se2 import between as relative  # noqa: E402
 
 
 def main() -> None:
@@ -31,7 +31,8 @@ def main() -> None:
     args = ap.parse_args()
     sim = SimConfig()
     # no extension: the map grows by new splines, which is what drives the state past 1000
-    base = SLAMConfig(spline=SplineConfig(degree=3, knot_spacing_m=0.5), mapping=MappingConfig(extend=False))
+    base = SLAMConfig(spline=SplineConfig(degree=3, knot_spacing_m=0.2, min_knot_spacing_m=0.2),
+                      mapping=MappingConfig(extend=False))
     config = simulation_config(base, sim)
     data = simulate(get_world(args.world), sim, seed=0, steps=args.steps)
     frames = list(data)
@@ -67,7 +68,7 @@ def main() -> None:
         prev = fr.odometry
     prof.disable()
     print(f"\nprofile of the last {len(frames) - k} scans (state size {slam2.state_size}):")
-    pstats.Stats(prof).sort_stats("cumulative").print_stats(22)
+    pstats.Stats(prof).sort_stats("cumulative").print_stats(20)
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ from bsslam.config import SLAMConfig
 from bsslam.dataset import Dataset, SkipCounter
 from bsslam.slam import MapSpline, SplineSLAM
 from bsslam.slam.enlarge import beam_points
-from bsslam.slam.motion import relative
+from bsslam.se2 import between
 from bsslam.trajectory import Trajectory
 
 Progress = Callable[[int, int | None], None]
@@ -93,7 +93,7 @@ def _run(dataset, config, steps, progress, total, point_stride, slam) -> RunResu
             break
         if slam is None:
             slam = SplineSLAM(config, initial_pose=frame.odometry)
-        delta = None if prev_odo is None else relative(prev_odo, frame.odometry)
+        delta = None if prev_odo is None else between(prev_odo, frame.odometry)
         prev_odo = frame.odometry
         t0 = time.perf_counter()
         report = slam.step(delta, frame.scan, frame.laser_offset)

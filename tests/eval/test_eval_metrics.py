@@ -12,7 +12,7 @@ from bsslam.eval.alignment import align_rigid_2d
 from bsslam.eval.association import associate
 from bsslam.eval.consistency import chi2_band, nees
 from bsslam.eval.relations import relations_error
-from bsslam.eval.se2 import between, compose, inverse
+from bsslam.se2 import between, compose, inverse
 from bsslam.eval.trajectory_error import ate, rpe
 from bsslam.trajectory import Trajectory, wrap_angle
 

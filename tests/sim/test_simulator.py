@@ -145,7 +145,8 @@ def test_full_run_is_the_double_loop_and_ends_at_the_start():
 def test_simulator_and_filter_share_one_motion_model():
     """The simulator's vectorised increments and noise agree with the filter's per-pose
     motion model, so a filter fed these odometry poses sees exactly the configured noise."""
-    from bsslam.slam.motion import compose, motion_noise, relative
+    from bsslam.se2 import between as relative, compose
+    from bsslam.slam.motion import motion_noise
 
     motion = MotionNoiseConfig(b_phi_per_m_rad=0.05)
     data = simulate(ROOM, SimConfig(motion=motion), seed=3, steps=80)

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
-from bsslam.slam.motion import compose, motion_jacobians
+from bsslam.se2 import compose
+from bsslam.slam.motion import motion_jacobians
 from bsslam.slam.observation import predict_beams
 from bsslam.spline import BSplineCurve, clamped_knots, extend_curve, fit_curve
 

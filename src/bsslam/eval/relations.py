@@ -11,7 +11,7 @@ import numpy as np
 
 from bsslam.errors import InputError
 from bsslam.eval.association import nearest_stamps
-from bsslam.eval.se2 import between
+from bsslam.se2 import between
 from bsslam.io.relations_file import read_relations
 from bsslam.trajectory import Trajectory
 

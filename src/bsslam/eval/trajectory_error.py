@@ -9,7 +9,7 @@ import numpy as np
 from bsslam.errors import InputError
 from bsslam.eval.alignment import align_rigid_2d
 from bsslam.eval.association import associate
-from bsslam.eval.se2 import between
+from bsslam.se2 import between
 from bsslam.trajectory import Trajectory, wrap_angle
 
 

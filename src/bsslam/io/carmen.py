@@ -53,6 +53,7 @@ from bsslam.io.no_return import detect_no_return_code, mark_no_return, no_return
 from bsslam.io.odometry_sync import OdometrySync
 from bsslam.io.reader_config import CARMEN_LASER_MESSAGES, ReaderConfig
 from bsslam.scan.laser_scan import LaserScan
+from bsslam.se2 import between
 from bsslam.trajectory import Trajectory, wrap_angle
 
 logger = logging.getLogger(__name__)
@@ -70,13 +71,6 @@ _PARAM_OFFSETS = {
 }
 _MOUNT_OF = {"FLASER": "front", "ROBOTLASER1": "front", "RAWLASER1": "front",
              "RLASER": "rear", "ROBOTLASER2": "rear", "RAWLASER2": "rear"}
-
-
-def _pose_in_frame(base: np.ndarray, pose: np.ndarray) -> np.ndarray:
-    """``pose`` (3,) expressed in the frame of ``base`` (3,): base⁻¹ ∘ pose."""
-    c, s = math.cos(base[2]), math.sin(base[2])
-    dx, dy = pose[0] - base[0], pose[1] - base[1]
-    return np.array([c * dx + s * dy, -s * dx + c * dy, float(wrap_angle(pose[2] - base[2]))])
 
 
 @dataclass
@@ -269,7 +263,7 @@ class CarmenReader:
     def _laser_offset(self, msg: LaserMessage, state: _StreamState) -> np.ndarray:
         if msg.laser_pose is None:
             return state.param_offset(msg.kind)
-        relative = _pose_in_frame(msg.robot_pose, msg.laser_pose)
+        relative = between(msg.robot_pose, msg.laser_pose)
         if msg.kind.startswith("ROBOTLASER") or np.max(np.abs(relative)) > _SAME_POSE_TOLERANCE:
             return relative
         return state.param_offset(msg.kind)

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import math
 import os
 from pathlib import Path
 from typing import Any, Iterator
@@ -44,7 +43,8 @@ from bsslam.io.odometry_sync import OdometrySync
 from bsslam.io.quaternion import yaw_from_quaternion
 from bsslam.io.reader_config import ReaderConfig
 from bsslam.scan.laser_scan import LaserScan
-from bsslam.trajectory import Trajectory, wrap_angle
+from bsslam.se2 import compose
+from bsslam.trajectory import Trajectory
 
 logger = logging.getLogger(__name__)
 
@@ -70,12 +70,6 @@ def _pose_2d(translation: Any, rotation: Any) -> np.ndarray:
     """(3,) planar pose (x m, y m, φ rad) of a 3-D translation and quaternion."""
     yaw = yaw_from_quaternion(rotation.x, rotation.y, rotation.z, rotation.w)
     return np.array([translation.x, translation.y, yaw], dtype=float)
-
-
-def _compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a ∘ b for planar poses (3,): b expressed in a's parent frame."""
-    c, s = math.cos(a[2]), math.sin(a[2])
-    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], float(wrap_angle(a[2] + b[2]))])
 
 
 def _pick(kind: str, candidates: list[str], option: str) -> str:
@@ -257,7 +251,7 @@ class RosbagReader:
             if frame == base_frame or frame not in statics:
                 break
             parent, pose = statics[frame]
-            offset, frame = _compose(pose, offset), parent
+            offset, frame = compose(pose, offset), parent
         if frame != base_frame and laser_frame:
             logger.warning("%s: no /tf_static path from %r to %r; laser offset set to zero",
                            self.path, laser_frame, base_frame)

@@ -8,22 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from bsslam.config import MotionNoiseConfig
-from bsslam.trajectory import wrap_angle
-
-
-def compose(pose: np.ndarray, delta: np.ndarray) -> np.ndarray:
-    """pose ⊕ delta: (3,) world pose after moving by a robot-frame increment (3,)."""
-    x, y, phi = pose
-    c, s = np.cos(phi), np.sin(phi)
-    return np.array([x + delta[0] * c - delta[1] * s, y + delta[0] * s + delta[1] * c,
-                     float(wrap_angle(phi + delta[2]))])
-
-
-def relative(pose_from: np.ndarray, pose_to: np.ndarray) -> np.ndarray:
-    """pose_from⁻¹ ⊕ pose_to: the robot-frame increment (3,) between two world poses."""
-    dx, dy = pose_to[0] - pose_from[0], pose_to[1] - pose_from[1]
-    c, s = np.cos(pose_from[2]), np.sin(pose_from[2])
-    return np.array([c * dx + s * dy, -s * dx + c * dy, float(wrap_angle(pose_to[2] - pose_from[2]))])
+from bsslam.se2 import compose
 
 
 def motion_jacobians(pose: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

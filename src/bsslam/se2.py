@@ -1,4 +1,6 @@
-"""Planar pose algebra on (..., 3) arrays (x m, y m, φ rad), vectorised over leading axes."""
+"""Planar pose algebra on (..., 3) arrays (x m, y m, φ rad), vectorised over leading axes.
+
+The one implementation for every layer (readers, filter, metrics); numpy only."""
 
 from __future__ import annotations
 
