@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from bsslam.slam.ekf import stacked_update
+from bsslam.slam.ekf import StackedGain, innovation_variances
 from bsslam.slam.motion import motion_jacobians, predict
 from bsslam.slam.state import JointState
 
@@ -20,37 +20,54 @@ def make_state(rng, n):
     return s, P
 
 
-@pytest.mark.parametrize("m", [3, 40])  # fewer and more beams than touched columns
-def test_stacked_update_equals_dense_ekf(m):
-    rng = np.random.default_rng(1)
-    n = 30
+def dense_problem(rng, n, m, cols):
     state, P0 = make_state(rng, n)
-    x0 = state.x.copy()
-    cols = np.array([0, 1, 2, 5, 6, 7, 20, 21])
     H_c = rng.normal(size=(m, cols.size))
-    nu = rng.normal(size=m) * 0.01
-    R = 0.01 ** 2
-    res = stacked_update(state, cols, H_c, nu, R, gate=None)
     H = np.zeros((m, n))
     H[:, cols] = H_c
+    return state, P0, H_c, H
+
+
+COLS = np.array([0, 1, 2, 5, 6, 7, 20, 21])
+
+
+@pytest.mark.parametrize("m", [3, 40])  # fewer and more beams than touched columns
+def test_stacked_gain_equals_dense_ekf(m):
+    rng = np.random.default_rng(1)
+    n, R = 30, 0.01 ** 2
+    state, P0, H_c, H = dense_problem(rng, n, m, COLS)
+    x0 = state.x.copy()
+    nu = rng.normal(size=m) * 0.01
+    gain = StackedGain(state.P, COLS, H_c, R)
+    dx, nis = gain.correction(nu)
+    state.x[:] += dx
+    gain.update_covariance(state)
     S = H @ P0 @ H.T + R * np.eye(m)
     K = P0 @ H.T @ np.linalg.inv(S)
     np.testing.assert_allclose(state.x, x0 + K @ nu, atol=1e-10)
     np.testing.assert_allclose(state.P, (np.eye(n) - K @ H) @ P0, atol=1e-10)
     np.testing.assert_allclose(state.P, state.P.T, atol=0)
     assert np.all(np.linalg.eigvalsh(state.P) > 0)
-    np.testing.assert_allclose(res.nis, nu @ np.linalg.solve(S, nu), rtol=1e-9)
+    np.testing.assert_allclose(nis, nu @ np.linalg.solve(S, nu), rtol=1e-9)
+    np.testing.assert_allclose(gain.S_diag, np.diag(S), rtol=1e-12)
 
 
-def test_gate_drops_outliers_only():
+def test_gate_variances_prior_and_posterior_equal_dense_formulas():
+    """The filter gates at the prior with diag(H P Hᵀ) + R and at the corrected estimate with
+    diag(H' P⁺ H'ᵀ) + R, for a relinearised H' on other columns."""
     rng = np.random.default_rng(2)
-    state, _ = make_state(rng, 10)
-    cols = np.arange(3)
-    H_c = rng.normal(size=(5, 3))
-    nu = np.zeros(5)
-    nu[3] = 100.0  # far outside any plausible S
-    res = stacked_update(state, cols, H_c, nu, 1e-4, gate=6.63)
-    assert res.accepted.tolist() == [True, True, True, False, True]
+    n, m, R = 30, 12, 1e-4
+    state, P0, H_c, H = dense_problem(rng, n, m, COLS)
+    np.testing.assert_allclose(innovation_variances(P0, COLS, H_c, R), np.diag(H @ P0 @ H.T) + R, rtol=1e-12)
+    gain = StackedGain(P0, COLS, H_c, R)
+    K = P0 @ H.T @ np.linalg.inv(H @ P0 @ H.T + R * np.eye(m))
+    P_post = (np.eye(n) - K @ H) @ P0
+    cols2 = np.array([0, 1, 2, 6, 7, 8, 25])
+    H2_c = rng.normal(size=(9, cols2.size))
+    H2 = np.zeros((9, n))
+    H2[:, cols2] = H2_c
+    np.testing.assert_allclose(gain.posterior_variances(P0, cols2, H2_c, R), np.diag(H2 @ P_post @ H2.T) + R,
+                               rtol=1e-9)
 
 
 def test_predict_touches_only_pose_rows_and_columns():

@@ -81,3 +81,22 @@ def test_extension_carries_covariance_exactly(side, monkeypatch):
     lo2, hi2 = ext.curve.domain
     assert np.abs(ext.curve.evaluate(np.linspace(lo2, hi2, 200))[:, 1] - 3.0).max() < 0.01
     assert np.all(np.linalg.eigvalsh(P) > -1e-12)
+
+
+def test_removing_a_spline_keeps_everything_else():
+    config = SLAMConfig(initial_pose_sigma=(0.01, 0.01, 0.01))
+    slam = SplineSLAM(config, initial_pose=(0.0, 0.0, HEADING))
+    scan = wall_scan(-3.0, 3.0)
+    scan.ranges[85:95] = 80.0  # a gap: two splines
+    slam.step(None, scan)
+    assert len(slam.features) == 2
+    gone, kept = slam.map
+    kept_idx = slam.features[kept.id].state_indices.copy()
+    P_kept = slam.state.P[np.ix_(np.r_[0:3, kept_idx], np.r_[0:3, kept_idx])].copy()
+    size = slam.state_size
+    slam.remove_feature(gone.id)
+    assert slam.state_size == size - 2 * gone.curve.n_control
+    (after,) = slam.map
+    np.testing.assert_array_equal(after.curve.control_points, kept.curve.control_points)
+    idx = slam.features[kept.id].state_indices
+    np.testing.assert_array_equal(slam.state.P[np.ix_(np.r_[0:3, idx], np.r_[0:3, idx])], P_kept)

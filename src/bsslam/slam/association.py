@@ -71,16 +71,10 @@ def _at_end(t: np.ndarray, curve: BSplineCurve) -> np.ndarray:
     return (t <= lo + tol) | (t >= hi - tol)
 
 
-def match_pair(observed: BSplineCurve, mapped: BSplineCurve, feature_id: int,
-               match_distance_m: float) -> Match | None:
-    """Fig. 6 of the paper for one (observed, map) pair; None when they do not match."""
-    return _match_many([observed], mapped, feature_id, np.array([match_distance_m]))[0]
-
-
 def _match_many(observed: list[BSplineCurve], mapped: BSplineCurve, feature_id: int,
                 match_distance_m: np.ndarray) -> list[Match | None]:
-    """:func:`match_pair` of several observed splines against one map spline, with one
-    closest-point query for all their end points."""
+    """Fig. 6 of the paper for several observed splines against one map spline (None where
+    a pair does not match), with one closest-point query for all their end points."""
     ends = np.vstack([o.evaluate(np.array(o.domain)) for o in observed])          # (2k, 2)
     t_ends, _, _ = closest_point(mapped, ends)
     t_ends = t_ends.reshape(-1, 2)

@@ -11,8 +11,6 @@ checked; the tests check symmetry and positive definiteness on every simulated r
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from scipy.linalg import cho_factor, qr, solve_triangular
 from scipy.stats import chi2
@@ -80,44 +78,3 @@ class StackedGain:
         # exactly known components (zero variance, e.g. a fixed start) stay 0; negative is broken
         if np.any(np.diag(P)[:3] < -1e-12):
             raise FilterError("pose covariance lost positive definiteness in the update")
-
-
-@dataclass(frozen=True)
-class UpdateResult:
-    """What one stacked update did.
-
-    Attributes:
-        innovation: (m,) ν = z − ẑ of the beams used (m).
-        innovation_variance: (m,) diagonal of S (m²).
-        nis: ν S⁻¹ ν of the stacked update (dimensionless), χ² with ``len(innovation)`` dof.
-        accepted: (m_in,) bool mask of the beams passed in that survived the gate.
-    """
-
-    innovation: np.ndarray
-    innovation_variance: np.ndarray
-    nis: float
-    accepted: np.ndarray
-
-
-def stacked_update(state: JointState, cols: np.ndarray, H_c: np.ndarray, innovation: np.ndarray,
-                   range_variance: float, gate: float | None = None) -> UpdateResult:
-    """One (non-iterated) EKF update of ``state`` in place with m beams.
-
-    Args:
-        cols: (c,) state indices that ``H`` touches (pose and control points).
-        H_c: (m, c) the Jacobian restricted to ``cols``.
-        innovation: (m,) z − ẑ (m).
-        range_variance: R of one beam (m²).
-        gate: χ² bound on ν_i²/S_ii per beam; None disables gating.
-    """
-    accepted = np.ones(innovation.shape[0], dtype=bool)
-    if gate is not None:
-        s_diag = innovation_variances(state.P, cols, H_c, range_variance)
-        accepted = innovation * innovation <= gate * s_diag
-    if not accepted.any():
-        return UpdateResult(np.empty(0), np.empty(0), 0.0, accepted)
-    gain = StackedGain(state.P, cols, H_c[accepted], range_variance)
-    dx, nis = gain.correction(innovation[accepted])
-    state.x[:] += dx
-    gain.update_covariance(state)
-    return UpdateResult(innovation[accepted], gain.S_diag, nis, accepted)

@@ -247,11 +247,10 @@ class SplineSLAM:
         """
         max_tan = math.tan(self.config.observation.max_incidence_rad)
         pose = x[:3]
-        offset_ = offset
         rows_pose, cp_cols, cp_vals, residual, owner, row_in_group, hit_t = [], [], [], [], [], [], []
         for gi, g in enumerate(groups):
             f = g.feature
-            pred = predict_beams(f.curve(x), pose, offset_, g.bearings, t0=g.t0)
+            pred = predict_beams(f.curve(x), pose, offset, g.bearings, t0=g.t0)
             ok = pred.hit & np.isfinite(pred.z)
             grazing = ok & (np.abs(pred.r) > max_tan)
             if report is not None:
