@@ -99,3 +99,30 @@ def test_growth_and_removal_keep_values():
     np.testing.assert_array_equal(state.x, x0)
     np.testing.assert_array_equal(state.P, P0)
     assert (mapping[idx] == -1).all() and (mapping[:9] == np.arange(9)).all()
+
+
+def _no_return_scan():
+    from bsslam.scan import LaserScan
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 181)
+    return LaserScan(0.0, angles, np.full(181, 100.0), max_range=80.0)
+
+
+def test_step_with_given_odometry_covariance_propagates_it():
+    """Without features the step is a pure prediction: P = F_u Q F_uᵀ from a known start."""
+    from bsslam.slam import SplineSLAM
+    from bsslam.slam.motion import motion_jacobians
+    slam = SplineSLAM(initial_pose=(1.0, 2.0, 0.7))
+    delta = np.array([0.4, -0.1, 0.2])
+    A = np.array([[0.02, 0.0, 0.0], [0.005, 0.01, 0.0], [0.001, 0.002, 0.03]])
+    Q = A @ A.T
+    slam.step(delta, _no_return_scan(), odometry_covariance=Q)
+    _, F_u = motion_jacobians(np.array([1.0, 2.0, 0.7]), delta)
+    np.testing.assert_allclose(slam.pose_covariance, F_u @ Q @ F_u.T, atol=1e-15)
+
+
+def test_step_rejects_an_indefinite_odometry_covariance():
+    from bsslam.errors import InputError
+    from bsslam.slam import SplineSLAM
+    slam = SplineSLAM()
+    with pytest.raises(InputError, match="covariance"):
+        slam.step(np.array([0.1, 0.0, 0.0]), _no_return_scan(), odometry_covariance=np.diag([1.0, -1.0, 1.0]))

@@ -146,7 +146,8 @@ class SplineSLAM:
         return (obs.sigma_range_m ** 2 + obs.sigma_model_m ** 2) * obs.r_inflation
 
     # -- the algorithm ------------------------------------------------------------------
-    def step(self, odometry_delta, scan: LaserScan, laser_offset=None) -> StepReport:
+    def step(self, odometry_delta, scan: LaserScan, laser_offset=None,
+             odometry_covariance=None) -> StepReport:
         """Process one scan.
 
         Args:
@@ -154,6 +155,8 @@ class SplineSLAM:
                 step, or None when the robot has not moved (no prediction, e.g. the first scan).
             scan: the laser scan taken at the new pose.
             laser_offset: (3,) laser pose in the robot frame; zeros by default.
+            odometry_covariance: (3, 3) covariance of the increment (m², m·rad, rad²), e.g.
+                from a scan matcher; by default the configured motion noise model.
         """
         offset = np.zeros(3) if laser_offset is None else np.asarray(laser_offset, dtype=float)
         report = StepReport()
@@ -161,7 +164,13 @@ class SplineSLAM:
             delta = np.asarray(odometry_delta, dtype=float).reshape(-1)
             if delta.shape != (3,) or not np.all(np.isfinite(delta)):
                 raise InputError(f"odometry increment must be 3 finite numbers, got {odometry_delta!r}")
-            self._predict(delta)
+            if odometry_covariance is None:
+                Q = motion_noise(delta, self.config.motion)
+            else:
+                Q = np.asarray(odometry_covariance, dtype=float)
+                if Q.shape != (3, 3) or not np.all(np.isfinite(Q)) or np.any(np.linalg.eigvalsh(0.5 * (Q + Q.T)) < 0):
+                    raise InputError(f"odometry covariance must be a 3×3 positive semi-definite matrix, got {Q!r}")
+            predict(self.state.x, self.state.P, delta, Q)
         observed = self._observe(scan, report)
         matches = self._associate(observed, offset)
         self._update(observed, matches, offset, report)
@@ -170,9 +179,6 @@ class SplineSLAM:
         self.steps += 1
         report.state_size = self.state.size
         return report
-
-    def _predict(self, delta: np.ndarray) -> None:
-        predict(self.state.x, self.state.P, delta, motion_noise(delta, self.config.motion))
 
     def _observe(self, scan: LaserScan, report: StepReport) -> list[ObservedSpline]:
         features = extract_splines(scan, self.config)
