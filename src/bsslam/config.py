@@ -198,15 +198,21 @@ class MappingConfig:
             no extension: mean NEES 5–8 at steps 7–9, 13–15, 21–23; with the check none of
             those steps exceeds 3.7). Under range noise alone the largest score along a 140-
             point wall is below 3.65 in 99% of draws, so 4 rarely refines a good fit.
+        prune_after_scans: a map spline that no update has used within this many scans of
+            its creation leaves the state (0 keeps every spline). Real buildings are full of
+            things seen once — people, chair legs, glass, a door swinging — and each would
+            otherwise stay in the state for good and cost O(n²) in every later update.
     """
 
     extend: bool = True
     min_extension_m: float = 0.5
     max_extension_rms_m: float = 0.015
     fit_bias_sigmas: float | None = 4.0
+    prune_after_scans: int = 0
 
     def __post_init__(self) -> None:
         _check(self.min_extension_m >= 0, "mapping.min_extension_m must be ≥ 0")
+        _check(self.prune_after_scans >= 0, "mapping.prune_after_scans must be ≥ 0")
         _check(self.max_extension_rms_m > 0, "mapping.max_extension_rms_m must be > 0")
         _check(self.fit_bias_sigmas is None or self.fit_bias_sigmas > 0,
                "mapping.fit_bias_sigmas must be > 0 or None")

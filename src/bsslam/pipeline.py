@@ -105,7 +105,8 @@ def _run(dataset, config, steps, progress, total, point_stride, slam) -> RunResu
         sizes.append(report.state_size)
         nis.append(report.nis)
         dof.append(report.nis_dof)
-        for key in ("observed_splines", "matched_splines", "new_splines", "extended_splines", "beams_used"):
+        for key in ("observed_splines", "matched_splines", "new_splines", "extended_splines",
+                    "pruned_splines", "beams_used"):
             totals[key] = totals.get(key, 0) + int(getattr(report, key))
         for reason, count in report.beams_dropped.items():
             totals[f"beams_dropped_{reason}"] = totals.get(f"beams_dropped_{reason}", 0) + count

@@ -38,6 +38,7 @@ class StepReport:
         observed_splines: splines fitted to the scan.
         matched_splines: observed splines associated with at least one map spline.
         new_splines, extended_splines: map enlargements made this step.
+        pruned_splines: map splines removed this step (never confirmed by a later scan).
         beams_used: beams in the EKF update.
         beams_dropped: beams left out of the update, by reason (missed the curve, grazing,
             innovation gate).
@@ -53,6 +54,7 @@ class StepReport:
     matched_splines: int = 0
     new_splines: int = 0
     extended_splines: int = 0
+    pruned_splines: int = 0
     beams_used: int = 0
     beams_dropped: dict[str, int] = field(default_factory=dict)
     scan_counts: dict[str, int] = field(default_factory=dict)
@@ -176,6 +178,7 @@ class SplineSLAM:
         self._update(observed, matches, offset, report)
         self._reassociate(observed, matches, offset, report)
         self._enlarge(observed, matches, offset, report)
+        report.pruned_splines = self._prune()
         self.steps += 1
         report.state_size = self.state.size
         return report
@@ -486,12 +489,27 @@ class SplineSLAM:
         P[idx, :] = T @ P[idx, :]
         P[:, idx] = P[:, idx] @ T.T
 
+    def _prune(self) -> int:
+        """Remove map splines never used in an update within ``prune_after_scans`` scans of
+        their creation (returns how many)."""
+        after = self.config.mapping.prune_after_scans
+        if not after:
+            return 0
+        stale = [f.id for f in self.features.values() if f.observations == 0 and self.steps - f.created >= after]
+        self.remove_features(stale)
+        return len(stale)
+
     def remove_feature(self, feature_id: int) -> None:
         """Delete a map spline and its rows/columns of the state."""
-        f = self.features.pop(feature_id)
-        if not f.in_state:
+        self.remove_features([feature_id])
+
+    def remove_features(self, feature_ids) -> None:
+        """Delete map splines and their rows/columns of the state, compacting P once."""
+        removed = [self.features.pop(fid) for fid in feature_ids]
+        idx = [f.state_indices for f in removed if f.in_state]
+        if not idx:
             return
-        mapping = self.state.remove(f.state_indices)
+        mapping = self.state.remove(np.concatenate(idx))
         for g in self.features.values():
             if g.in_state:
                 g.idx_x, g.idx_y = mapping[g.idx_x], mapping[g.idx_y]
