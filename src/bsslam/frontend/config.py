@@ -98,7 +98,7 @@ class FrontendConfig:
     max_scan_points: int = 400
     search_points: int = 150
     # submap
-    submap_keyframes: int = 6
+    submap_keyframes: int = 20
     submap_voxel_m: float = 0.05
     keyframe_distance_m: float = 0.3
     keyframe_angle_rad: float = math.radians(10.0)
@@ -133,7 +133,7 @@ class FrontendConfig:
     odom_sigma_rad_per_m: float = math.radians(5.0)
     # trust
     min_points: int = 30
-    min_inlier_fraction: float = 0.4
+    min_inlier_fraction: float = 0.25
     degenerate_ratio: float = 0.02
 
     def __post_init__(self) -> None:

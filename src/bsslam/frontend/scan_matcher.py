@@ -315,11 +315,12 @@ class ReferenceMap:
                 break
             x = x + delta
             x[2] = wrap_angle(x[2])
-            small = np.hypot(delta[0], delta[1]) < 1e-4 and abs(delta[2]) < 1e-4
+            small = np.hypot(delta[0], delta[1]) < 2e-4 and abs(delta[2]) < 2e-4
             if small and gate <= cfg.icp_min_distance_m:
                 break
-            if small or it >= 3:
-                gate = max(cfg.icp_min_distance_m, 0.7 * gate)
+            # The correlative start is within a fine step: the wide gate is only needed to
+            # pull in points the first step, then it shrinks to the final one.
+            gate = max(cfg.icp_min_distance_m, 0.5 * gate)
         r, J, w, found = self._residuals(points, x, gate)
         info = (J * w[:, None]).T @ J
         residuals = np.full(points.shape[0], np.nan)
