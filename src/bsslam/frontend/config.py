@@ -37,6 +37,10 @@ class FrontendConfig:
     Submap
         submap_keyframes: the reference is the union of the last this-many keyframes.
         submap_voxel_m: the submap is thinned to one point per cell of this size (m).
+        submap_rebuild_every: the submap's likelihood fields and KD-tree are rebuilt from
+            the last ``submap_keyframes`` keyframes every this many keyframes; in between,
+            a new keyframe is added to them in place (so the submap holds up to
+            ``submap_keyframes + submap_rebuild_every − 1`` keyframes). 1 rebuilds always.
         keyframe_distance_m, keyframe_angle_rad: a scan becomes a keyframe when it is this
             far (m) or this much turned (rad) from the last keyframe.
         normal_neighbours: points used for each reference point's local line fit (normal).
@@ -100,6 +104,7 @@ class FrontendConfig:
     # submap
     submap_keyframes: int = 20
     submap_voxel_m: float = 0.05
+    submap_rebuild_every: int = 5
     keyframe_distance_m: float = 0.3
     keyframe_angle_rad: float = math.radians(10.0)
     normal_neighbours: int = 7
@@ -151,7 +156,7 @@ class FrontendConfig:
         _check(self.max_range_m > self.min_range_m, "frontend.max_range_m must exceed min_range_m")
         _check(self.odom_sigma_xy_m > 0 and self.odom_sigma_rad > 0,
                "frontend.odom_sigma_xy_m and odom_sigma_rad must be > 0 (the fallback covariance)")
-        for name in ("max_scan_points", "search_points", "submap_keyframes", "coarse_candidates",
+        for name in ("max_scan_points", "search_points", "submap_keyframes", "submap_rebuild_every", "coarse_candidates",
                      "icp_iterations", "min_points"):
             _check(getattr(self, name) >= 1, f"frontend.{name} must be ≥ 1, got {getattr(self, name)!r}")
         _check(self.normal_neighbours >= 3, "frontend.normal_neighbours must be ≥ 3")

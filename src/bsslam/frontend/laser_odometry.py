@@ -97,6 +97,7 @@ class LaserOdometry:
         self._prev_odometry: np.ndarray | None = None
         self._keyframes: deque[_Keyframe] = deque(maxlen=config.submap_keyframes)
         self._reference: ReferenceMap | None = None
+        self._since_rebuild = 0
 
     def odometry_covariance(self, increment: np.ndarray) -> np.ndarray:
         """(3, 3) diagonal covariance of a raw odometry increment under the config's model."""
@@ -162,9 +163,23 @@ class LaserOdometry:
         keep = voxel_thin(points, self.config.submap_voxel_m)
         pts = points[keep]
         normals, linear = estimate_normals(pts, self.config.normal_neighbours)
-        self._keyframes.append(_Keyframe(np.asarray(pose, dtype=float).copy(), pts, normals, linear))
-        self._reference = None
+        kf = _Keyframe(np.asarray(pose, dtype=float).copy(), pts, normals, linear)
+        self._keyframes.append(kf)
         self.stats.keyframes += 1
+        self._since_rebuild += 1
+        # Rebuilding the fields of the whole submap costs a few ms; in between, the new
+        # keyframe is added in place (old keyframes then stay a few keyframes longer).
+        if self._reference is not None and self._since_rebuild < self.config.submap_rebuild_every:
+            world, world_normals = self._to_world(kf)
+            if self._reference.extend(world, world_normals, kf.linear):
+                return
+        self._reference = None
+
+    @staticmethod
+    def _to_world(kf: _Keyframe) -> tuple[np.ndarray, np.ndarray]:
+        c, s = np.cos(kf.pose[2]), np.sin(kf.pose[2])
+        R = np.array([[c, -s], [s, c]])
+        return kf.points @ R.T + kf.pose[:2], kf.normals @ R.T
 
     def _submap(self) -> ReferenceMap | None:
         """The reference of the last keyframes in the front-end frame (built lazily)."""
@@ -172,11 +187,11 @@ class LaserOdometry:
             return self._reference
         pts, nrm, lin = [], [], []
         for kf in self._keyframes:
-            c, s = np.cos(kf.pose[2]), np.sin(kf.pose[2])
-            R = np.array([[c, -s], [s, c]])
-            pts.append(kf.points @ R.T + kf.pose[:2])
-            nrm.append(kf.normals @ R.T)
+            world, world_normals = self._to_world(kf)
+            pts.append(world)
+            nrm.append(world_normals)
             lin.append(kf.linear)
+        self._since_rebuild = 0
         points = np.concatenate(pts) if pts else np.zeros((0, 2))
         if points.shape[0] < self.config.min_points:
             return None

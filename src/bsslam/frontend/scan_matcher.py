@@ -126,6 +126,9 @@ class LikelihoodField:
     shape: tuple[int, int]
     values: np.ndarray
     pad: int
+    kernel_offset: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0, dtype=np.int64))
+    kernel_value: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0, dtype=np.float32))
+    radius: int = 0
 
     @classmethod
     def build(cls, points: np.ndarray, resolution: float, sigma: float, max_offset_m: float) -> LikelihoodField:
@@ -144,13 +147,26 @@ class LikelihoodField:
         kernel_offset = (ox.ravel() * ny + oy.ravel())[near]
         kernel_value = np.exp(-0.5 * d2[near] / sigma ** 2).astype(np.float32)
         values = np.zeros(nx * ny, dtype=np.float32)
-        target = (occupied[:, None] + kernel_offset[None, :]).ravel()
-        np.maximum.at(values, target, np.broadcast_to(kernel_value, (occupied.shape[0], kernel_value.shape[0])).ravel())
-        return cls(origin, resolution, (int(nx), int(ny)), values, pad)
+        built = cls(origin, resolution, (int(nx), int(ny)), values, pad, kernel_offset, kernel_value, radius)
+        built._splat_cells(occupied)
+        return built
+
+    def add(self, points: np.ndarray) -> None:
+        """Raise the field in place for more reference ``points`` (m, 2); points whose
+        kernel would leave the zero border (outside the grid built) are ignored."""
+        c = np.floor((points - self.origin) / self.resolution).astype(np.int64)
+        lo, hi = 2 * self.pad + self.radius + 1, np.array(self.shape) - 2 * self.pad - self.radius - 2
+        inside = np.all((c >= lo) & (c <= hi), axis=1)
+        self._splat_cells(np.unique(c[inside, 0] * self.shape[1] + c[inside, 1]))
+
+    def _splat_cells(self, occupied: np.ndarray) -> None:
+        target = (occupied[:, None] + self.kernel_offset[None, :]).ravel()
+        value = np.broadcast_to(self.kernel_value, (occupied.shape[0], self.kernel_value.shape[0])).ravel()
+        np.maximum.at(self.values, target, value)
 
     def cell_index(self, points: np.ndarray) -> np.ndarray:
         """Flat cell index (...,) of world points (..., 2), clipped ``pad`` cells inside."""
-        c = np.floor((points - self.origin) / self.resolution).astype(np.int64)
+        c = np.floor((points - self.origin) / self.resolution).astype(np.intp)
         ix = np.clip(c[..., 0], self.pad, self.shape[0] - 1 - self.pad)
         iy = np.clip(c[..., 1], self.pad, self.shape[1] - 1 - self.pad)
         return ix * self.shape[1] + iy
@@ -164,7 +180,7 @@ class LikelihoodField:
         base = self.cell_index(np.stack((wx, wy), axis=-1))               # (p, n)
         flat_offset = offsets[:, 0] * self.shape[1] + offsets[:, 1]       # (t,)
         idx = base[:, None, :] + flat_offset[None, :, None]               # (p, t, n)
-        return np.take(self.values, idx).mean(axis=2, dtype=np.float64)
+        return np.take(self.values, idx).sum(axis=2, dtype=np.float32) / points.shape[0]
 
 
 def _offset_grid(half_cells: int, step_cells: int) -> np.ndarray:
@@ -248,6 +264,22 @@ class ReferenceMap:
         self.line_normals = np.asarray(normals, dtype=float)[linear]
         self.tree = cKDTree(self.line_points)
 
+    def extend(self, points: np.ndarray, normals: np.ndarray, linear: np.ndarray) -> bool:
+        """Add reference points (with normals and line flags) in place: both fields are
+        raised where the new points fall inside the grids built, and the KD-tree is rebuilt.
+        Returns False (nothing changed) when the map was not usable; build anew then."""
+        if not self.usable:
+            return False
+        points = np.asarray(points, dtype=float).reshape(-1, 2)
+        self.coarse.add(points)
+        self.fine.add(points)
+        self.points = np.concatenate((self.points, points))
+        self.size = self.points.shape[0]
+        self.line_points = np.concatenate((self.line_points, points[linear]))
+        self.line_normals = np.concatenate((self.line_normals, np.asarray(normals, dtype=float)[linear]))
+        self.tree = cKDTree(self.line_points)
+        return True
+
     # -- correlative search ------------------------------------------------------------------
 
     def correlative(self, points: np.ndarray, guess: np.ndarray) -> tuple[np.ndarray, float]:
@@ -269,15 +301,16 @@ class ReferenceMap:
         score = score - cfg.search_prior_weight * prior
         candidates = _distinct_maxima(score, cfg.coarse_candidates,
                                       rot_sep=2, off=offsets, off_sep=2 * step_c)
-        # Fine level: ±1 coarse step (rotation and translation) around each candidate.
-        fine_rot = cfg.fine_step_rad * np.arange(-int(round(cfg.coarse_step_rad / cfg.fine_step_rad)),
-                                                 int(round(cfg.coarse_step_rad / cfg.fine_step_rad)) + 1)
+        # Fine level: ±1 coarse step (rotation and translation) around each candidate: the
+        # blurred coarse peak can sit a whole step from the true one.
+        n_fine_rot = int(round(cfg.coarse_step_rad / cfg.fine_step_rad))
+        fine_rot = cfg.fine_step_rad * np.arange(-n_fine_rot, n_fine_rot + 1)
         centres = np.array([[guess[0] + offsets[t, 0] * res_c, guess[1] + offsets[t, 1] * res_c, rots[r]]
                             for r, t in candidates])
         fine_poses = np.repeat(centres, fine_rot.shape[0], axis=0)
         fine_poses[:, 2] += np.tile(fine_rot, centres.shape[0])
         res_f = self.fine.resolution
-        fine_offsets = _offset_grid(int(round(cfg.coarse_step_m / res_f)), max(1, int(round(cfg.fine_step_m / res_f))))
+        fine_offsets = _offset_grid(int(round(cfg.coarse_step_m / res_f)), 1)
         fine = self.fine.score_poses(points, fine_poses, fine_offsets)
         dxy = fine_poses[:, None, :2] + fine_offsets[None, :, :] * res_f - guess[:2]
         fprior = (np.sum(dxy ** 2, axis=2) / (2 * cfg.search_window_m ** 2)
