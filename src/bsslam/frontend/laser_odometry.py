@@ -1,0 +1,203 @@
+"""Stateful laser odometry: each frame's scan is matched against a submap of the last few
+keyframes, turning the raw odometry increment into a scan-matched one with a covariance.
+
+The front end keeps its own pose (the composition of the increments it returned, starting
+at the first frame's odometry pose). For every frame after the first:
+
+1. the raw increment ``between(previous odometry, odometry)`` predicts the pose,
+2. the scan is matched around that guess against the submap (:class:`ReferenceMap`),
+3. the increment is ``between(previous pose, matched pose)`` and its covariance the match
+   covariance turned into the previous robot frame; when the match is not trusted the raw
+   increment is returned with the odometry-model covariance (a *fallback*, counted),
+4. the scan becomes a keyframe when the robot is far enough from the last one; the
+   submap is the union of the last ``submap_keyframes`` keyframes, thinned.
+
+The covariance is that of the new pose *given* the submap, i.e. of the increment given
+the previous pose. Increments matched against a shared submap are slightly correlated;
+a consumer that treats them as independent odometry (the EKF) ignores that.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bsslam.dataset import Frame
+from bsslam.frontend.config import FrontendConfig
+from bsslam.frontend.scan_matcher import MatchResult, ReferenceMap, estimate_normals, scan_points, voxel_thin
+from bsslam.se2 import between, compose
+
+
+@dataclass(frozen=True)
+class FrontendStep:
+    """What :meth:`LaserOdometry.step` returns for one frame.
+
+    Attributes:
+        increment: (3,) robot-frame motion since the previous frame (Δx m, Δy m, Δφ rad);
+            None for the first frame (no motion to report, as the filter's ``step`` expects).
+        covariance: (3, 3) covariance of ``increment``; None for the first frame.
+        pose: (3,) the front end's pose after this frame (x m, y m, φ rad).
+        odometry_increment: (3,) the raw increment from the frame's odometry; None first.
+        match: the scan match, None when none was attempted (first frame, empty submap).
+        fallback: True when ``increment`` is the raw odometry increment.
+        keyframe: True when the scan was added to the submap.
+    """
+
+    increment: np.ndarray | None
+    covariance: np.ndarray | None
+    pose: np.ndarray
+    odometry_increment: np.ndarray | None
+    match: MatchResult | None
+    fallback: bool
+    keyframe: bool
+
+
+@dataclass
+class FrontendStats:
+    """Counters over all frames fed so far.
+
+    Attributes:
+        frames: frames processed.
+        matched: frames whose increment comes from a trusted match.
+        fallbacks: frames (after the first) that used the raw odometry increment.
+        reasons: fallback counts by reason (:data:`~bsslam.frontend.scan_matcher.FAIL_REASONS`).
+        degenerate: trusted matches flagged degenerate.
+        keyframes: keyframes made.
+    """
+
+    frames: int = 0
+    matched: int = 0
+    fallbacks: int = 0
+    reasons: dict[str, int] = field(default_factory=dict)
+    degenerate: int = 0
+    keyframes: int = 0
+
+
+@dataclass(frozen=True)
+class _Keyframe:
+    pose: np.ndarray          # (3,) robot pose in the front-end frame
+    points: np.ndarray        # (k, 2) thinned points, robot frame
+    normals: np.ndarray       # (k, 2) their normals, robot frame
+    linear: np.ndarray        # (k,) line-like
+
+
+class LaserOdometry:
+    """Scan-matched odometry; feed it frames in order with :meth:`step`.
+
+    Args:
+        config: front-end parameters.
+    """
+
+    def __init__(self, config: FrontendConfig = FrontendConfig()) -> None:
+        self.config = config
+        self.stats = FrontendStats()
+        self.pose: np.ndarray | None = None
+        self._prev_odometry: np.ndarray | None = None
+        self._keyframes: deque[_Keyframe] = deque(maxlen=config.submap_keyframes)
+        self._reference: ReferenceMap | None = None
+        self._since_rebuild = 0
+
+    def odometry_covariance(self, increment: np.ndarray) -> np.ndarray:
+        """(3, 3) diagonal covariance of a raw odometry increment under the config's model."""
+        cfg = self.config
+        d = float(np.hypot(increment[0], increment[1]))
+        sxy = cfg.odom_sigma_xy_m + cfg.odom_sigma_xy_per_m * d
+        sphi = cfg.odom_sigma_rad + cfg.odom_sigma_rad_per_rad * abs(float(increment[2])) + cfg.odom_sigma_rad_per_m * d
+        return np.diag([sxy ** 2, sxy ** 2, sphi ** 2])
+
+    def step(self, frame: Frame) -> FrontendStep:
+        """Process one frame; returns the corrected increment since the previous frame."""
+        cfg = self.config
+        odometry = np.asarray(frame.odometry, dtype=float).reshape(3)
+        points = scan_points(frame.scan, frame.laser_offset, cfg)
+        self.stats.frames += 1
+        if self.pose is None:
+            self.pose = odometry.copy()
+            self._prev_odometry = odometry
+            self._add_keyframe(self.pose, points)
+            return FrontendStep(None, None, self.pose.copy(), None, None, False, True)
+
+        odo_inc = between(self._prev_odometry, odometry)
+        self._prev_odometry = odometry
+        odo_cov = self.odometry_covariance(odo_inc)
+        prev = self.pose
+        # Robot-frame (of the previous pose) ↔ front-end frame: rotate by its heading.
+        rot = np.eye(3)
+        c, s = np.cos(prev[2]), np.sin(prev[2])
+        rot[:2, :2] = [[c, -s], [s, c]]
+        guess = compose(prev, odo_inc)
+        match = None
+        reference = self._submap()
+        if reference is not None:
+            match = reference.match(points, guess, rot @ odo_cov @ rot.T)
+        if match is not None and match.ok:
+            increment = between(prev, match.pose)
+            covariance = rot.T @ match.covariance @ rot
+            covariance = 0.5 * (covariance + covariance.T)
+            self.stats.matched += 1
+            self.stats.degenerate += int(match.degenerate)
+            fallback = False
+        else:
+            increment, covariance, fallback = odo_inc, odo_cov, True
+            reason = "too_few_reference_points" if match is None else match.reason
+            self.stats.fallbacks += 1
+            self.stats.reasons[reason] = self.stats.reasons.get(reason, 0) + 1
+        self.pose = compose(prev, increment)
+        keyframe = self._is_keyframe(self.pose)
+        if keyframe:
+            self._add_keyframe(self.pose, points)
+        return FrontendStep(increment, covariance, self.pose.copy(), odo_inc, match, fallback, keyframe)
+
+    # -- submap ----------------------------------------------------------------------------
+
+    def _is_keyframe(self, pose: np.ndarray) -> bool:
+        if not self._keyframes:
+            return True
+        rel = between(self._keyframes[-1].pose, pose)
+        return bool(np.hypot(rel[0], rel[1]) >= self.config.keyframe_distance_m
+                    or abs(rel[2]) >= self.config.keyframe_angle_rad)
+
+    def _add_keyframe(self, pose: np.ndarray, points: np.ndarray) -> None:
+        keep = voxel_thin(points, self.config.submap_voxel_m)
+        pts = points[keep]
+        normals, linear = estimate_normals(pts, self.config.normal_neighbours)
+        kf = _Keyframe(np.asarray(pose, dtype=float).copy(), pts, normals, linear)
+        self._keyframes.append(kf)
+        self.stats.keyframes += 1
+        self._since_rebuild += 1
+        # Rebuilding the fields of the whole submap costs a few ms; in between, the new
+        # keyframe is added in place (old keyframes then stay a few keyframes longer).
+        if self._reference is not None and self._since_rebuild < self.config.submap_rebuild_every:
+            world, world_normals = self._to_world(kf)
+            if self._reference.extend(world, world_normals, kf.linear):
+                return
+        self._reference = None
+
+    @staticmethod
+    def _to_world(kf: _Keyframe) -> tuple[np.ndarray, np.ndarray]:
+        c, s = np.cos(kf.pose[2]), np.sin(kf.pose[2])
+        R = np.array([[c, -s], [s, c]])
+        return kf.points @ R.T + kf.pose[:2], kf.normals @ R.T
+
+    def _submap(self) -> ReferenceMap | None:
+        """The reference of the last keyframes in the front-end frame (built lazily)."""
+        if self._reference is not None:
+            return self._reference
+        pts, nrm, lin = [], [], []
+        for kf in self._keyframes:
+            world, world_normals = self._to_world(kf)
+            pts.append(world)
+            nrm.append(world_normals)
+            lin.append(kf.linear)
+        self._since_rebuild = 0
+        points = np.concatenate(pts) if pts else np.zeros((0, 2))
+        if points.shape[0] < self.config.min_points:
+            return None
+        normals, linear = np.concatenate(nrm), np.concatenate(lin)
+        # Newest first, so thinning keeps the most recent point of each cell.
+        order = np.arange(points.shape[0])[::-1]
+        keep = order[voxel_thin(points[order], self.config.submap_voxel_m)]
+        self._reference = ReferenceMap(points[keep], self.config, normals=normals[keep], linear=linear[keep])
+        return self._reference

@@ -1,0 +1,471 @@
+"""Matching one laser scan against reference points: correlative search, then robust
+point-to-line Gauss–Newton (ICP), with a covariance and a trust decision.
+
+The pose found is that of the *robot* in the frame of the reference points; the scan's
+points are given in the robot frame (laser offset already applied, see
+:func:`scan_points`).
+
+1. Correlative search (Olson 2009, "Real-time correlative scan matching"): the reference
+   is rasterised into two likelihood fields, ``exp(−d²/2σ²)`` of the distance ``d`` to the
+   nearest reference point, a coarse blurred one and a fine one. Every rotation × translation
+   of a grid around the odometry guess is scored at once (the mean field value under the
+   moved scan points), first on the coarse grid over the whole window, then on the fine grid
+   around the best few distinct coarse maxima. Translations are whole cells, so a score
+   is one gather per point; no Python loop runs per point, pose or beam.
+2. Refinement: Gauss–Newton on point-to-line residuals ``nᵀ(R p + t − q)`` to the nearest
+   reference point ``q`` (normal ``n`` from a local line fit), Huber weights, a shrinking
+   correspondence gate, and the odometry guess as a weak prior (it only decides the
+   directions the scan leaves free, e.g. along a corridor).
+3. Covariance: the inverse of the Gauss–Newton information, the residual σ being the larger
+   of the stated ``range_sigma_m`` and the one estimated from the residuals, inflated by
+   ``covariance_inflation`` for the correlation of neighbouring residuals, plus the prior
+   and a floor.
+4. Trust: too few points, too few inliers → ``ok = False`` (the caller falls back to
+   odometry); a weak translation direction → ``degenerate = True``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from bsslam.config import SegmentationConfig
+from bsslam.errors import InputError
+from bsslam.frontend.config import FrontendConfig
+from bsslam.scan.laser_scan import LaserScan
+from bsslam.scan.segment import valid_beams
+from bsslam.se2 import compose
+from bsslam.trajectory import wrap_angle
+
+#: Reasons a match is not trusted (``MatchResult.reason``); "ok" otherwise.
+FAIL_REASONS = ("too_few_scan_points", "too_few_reference_points", "too_few_correspondences", "poor_score")
+
+
+# ---------------------------------------------------------------------------------------------
+# points
+
+
+def scan_points(scan: LaserScan, laser_offset: np.ndarray | None, config: FrontendConfig) -> np.ndarray:
+    """(m, 2) end points (m) of the usable beams of ``scan`` in the robot frame.
+
+    Beams are dropped by :func:`bsslam.scan.valid_beams` (NaN/inf, no return, at or below
+    ``min_range_m``) and at or beyond ``max_range_m``; the laser offset is applied.
+    """
+    mask, _ = valid_beams(scan, SegmentationConfig(min_range_m=config.min_range_m))
+    mask &= np.nan_to_num(scan.ranges, nan=np.inf) < config.max_range_m
+    angles, ranges = scan.angles[mask], scan.ranges[mask]
+    offset = np.zeros(3) if laser_offset is None else np.asarray(laser_offset, dtype=float)
+    c, s = np.cos(offset[2] + angles), np.sin(offset[2] + angles)
+    return np.column_stack((offset[0] + ranges * c, offset[1] + ranges * s))
+
+
+def voxel_thin(points: np.ndarray, cell_m: float) -> np.ndarray:
+    """Indices (increasing) of one point per occupied ``cell_m`` square: the first one."""
+    points = np.asarray(points, dtype=float)
+    if points.shape[0] == 0:
+        return np.zeros(0, dtype=np.intp)
+    cells = np.floor(points / cell_m).astype(np.int64)
+    cells -= cells.min(axis=0)
+    key = cells[:, 0] * (int(cells[:, 1].max()) + 1) + cells[:, 1]
+    _, first = np.unique(key, return_index=True)
+    return np.sort(first)
+
+
+def even_subset(n: int, k: int) -> np.ndarray:
+    """Indices of at most ``k`` of ``n`` items, evenly spread (all when n ≤ k)."""
+    if n <= k:
+        return np.arange(n)
+    return np.unique(np.linspace(0, n - 1, k).round().astype(np.intp))
+
+
+def estimate_normals(points: np.ndarray, neighbours: int) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals (m, 2) of the line through each point's ``neighbours`` nearest points,
+    and a flag (m,) that the fit is line-like (thickness σ_min < 0.3·σ_max, so corners and
+    clutter are excluded from the point-to-line refinement)."""
+    m = points.shape[0]
+    if m < 3:
+        return np.zeros((m, 2)), np.zeros(m, dtype=bool)
+    k = min(neighbours, m)
+    _, idx = cKDTree(points).query(points, k=k)
+    nb = points[idx]                                         # (m, k, 2)
+    centred = nb - nb.mean(axis=1, keepdims=True)
+    sxx = np.einsum("ij,ij->i", centred[..., 0], centred[..., 0])
+    syy = np.einsum("ij,ij->i", centred[..., 1], centred[..., 1])
+    sxy = np.einsum("ij,ij->i", centred[..., 0], centred[..., 1])
+    # Principal axis angle of the 2×2 scatter; the normal is perpendicular to it.
+    axis = 0.5 * np.arctan2(2 * sxy, sxx - syy)
+    normals = np.column_stack((-np.sin(axis), np.cos(axis)))
+    half_trace, half_diff = 0.5 * (sxx + syy), np.hypot(0.5 * (sxx - syy), sxy)
+    lam_max, lam_min = half_trace + half_diff, half_trace - half_diff
+    linear = lam_min < 0.09 * lam_max                        # σ ratio 0.3
+    return normals, linear
+
+
+# ---------------------------------------------------------------------------------------------
+# likelihood fields
+
+
+@dataclass(frozen=True)
+class LikelihoodField:
+    """``exp(−d²/2σ²)`` of the distance ``d`` (m) from each cell centre to the nearest
+    reference cell, on a padded grid, stored flat (row = x cell, column = y cell).
+
+    Attributes:
+        origin: (2,) world position (m) of the corner of cell (0, 0).
+        resolution: cell size (m).
+        shape: (nx, ny) cells.
+        values: (nx·ny,) float32 field.
+        pad: points are clipped to this many cells inside the border before offsets of at
+            most ``pad`` cells are added; the outer ``2·pad`` cells are zero.
+    """
+
+    origin: np.ndarray
+    resolution: float
+    shape: tuple[int, int]
+    values: np.ndarray
+    pad: int
+    kernel_offset: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0, dtype=np.int64))
+    kernel_value: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0, dtype=np.float32))
+    radius: int = 0
+
+    @classmethod
+    def build(cls, points: np.ndarray, resolution: float, sigma: float, max_offset_m: float) -> LikelihoodField:
+        """Rasterise ``points`` (m, 2); offsets of up to ``max_offset_m`` are scored later."""
+        pad = int(np.ceil(max_offset_m / resolution)) + 1
+        radius = int(np.ceil(3.0 * sigma / resolution))
+        margin = 2 * pad + radius + 1
+        lo = points.min(axis=0)
+        origin = (np.floor(lo / resolution) - margin) * resolution
+        cells = np.floor((points - origin) / resolution).astype(np.int64)
+        nx, ny = (cells.max(axis=0) + margin + 1).tolist()
+        occupied = np.unique(cells[:, 0] * ny + cells[:, 1])
+        ox, oy = np.meshgrid(np.arange(-radius, radius + 1), np.arange(-radius, radius + 1), indexing="ij")
+        d2 = (ox * ox + oy * oy).ravel() * resolution ** 2
+        near = d2 <= (3.0 * sigma) ** 2 + 1e-12
+        kernel_offset = (ox.ravel() * ny + oy.ravel())[near]
+        kernel_value = np.exp(-0.5 * d2[near] / sigma ** 2).astype(np.float32)
+        values = np.zeros(nx * ny, dtype=np.float32)
+        built = cls(origin, resolution, (int(nx), int(ny)), values, pad, kernel_offset, kernel_value, radius)
+        built._splat_cells(occupied)
+        return built
+
+    def add(self, points: np.ndarray) -> None:
+        """Raise the field in place for more reference ``points`` (m, 2); points whose
+        kernel would leave the zero border (outside the grid built) are ignored."""
+        c = np.floor((points - self.origin) / self.resolution).astype(np.int64)
+        lo, hi = 2 * self.pad + self.radius + 1, np.array(self.shape) - 2 * self.pad - self.radius - 2
+        inside = np.all((c >= lo) & (c <= hi), axis=1)
+        self._splat_cells(np.unique(c[inside, 0] * self.shape[1] + c[inside, 1]))
+
+    def _splat_cells(self, occupied: np.ndarray) -> None:
+        target = (occupied[:, None] + self.kernel_offset[None, :]).ravel()
+        value = np.broadcast_to(self.kernel_value, (occupied.shape[0], self.kernel_value.shape[0])).ravel()
+        np.maximum.at(self.values, target, value)
+
+    def cell_index(self, points: np.ndarray) -> np.ndarray:
+        """Flat cell index (...,) of world points (..., 2), clipped ``pad`` cells inside."""
+        c = np.floor((points - self.origin) / self.resolution).astype(np.intp)
+        ix = np.clip(c[..., 0], self.pad, self.shape[0] - 1 - self.pad)
+        iy = np.clip(c[..., 1], self.pad, self.shape[1] - 1 - self.pad)
+        return ix * self.shape[1] + iy
+
+    def score_poses(self, points: np.ndarray, poses: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """Mean field value of robot-frame ``points`` (n, 2) at every pose ``poses[p]``
+        shifted by every whole-cell offset ``offsets[t]`` (t, 2) (int cells): (p, t)."""
+        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        wx = c[:, None] * points[None, :, 0] - s[:, None] * points[None, :, 1] + poses[:, 0:1]
+        wy = s[:, None] * points[None, :, 0] + c[:, None] * points[None, :, 1] + poses[:, 1:2]
+        base = self.cell_index(np.stack((wx, wy), axis=-1))               # (p, n)
+        flat_offset = offsets[:, 0] * self.shape[1] + offsets[:, 1]       # (t,)
+        idx = base[:, None, :] + flat_offset[None, :, None]               # (p, t, n)
+        return np.take(self.values, idx).sum(axis=2, dtype=np.float32) / points.shape[0]
+
+
+def _offset_grid(half_cells: int, step_cells: int) -> np.ndarray:
+    """(t, 2) int offsets k·step for k·step in [−half, half] on both axes."""
+    k = np.arange(-(half_cells // step_cells), half_cells // step_cells + 1) * step_cells
+    gx, gy = np.meshgrid(k, k, indexing="ij")
+    return np.column_stack((gx.ravel(), gy.ravel()))
+
+
+# ---------------------------------------------------------------------------------------------
+# result
+
+
+@dataclass(frozen=True)
+class MatchResult:
+    """The outcome of one scan match.
+
+    Attributes:
+        pose: (3,) robot pose in the reference frame (x m, y m, φ rad); the guess when
+            ``ok`` is False.
+        covariance: (3, 3) its covariance (m², m·rad, rad²); the prior's when not ``ok``.
+        score: fraction of the refined scan points that are inliers (residual below
+            ``inlier_distance_m``), in [0, 1].
+        ok: whether the match is trusted.
+        reason: "ok" or one of :data:`FAIL_REASONS`.
+        degenerate: the scan fixes one translation direction only weakly (a corridor);
+            that direction then comes from the prior.
+        correlation: best mean likelihood of the fine correlative search, in [0, 1].
+        points: scan points used in the refinement.
+        inliers: of which inliers.
+        iterations: Gauss–Newton iterations run.
+        information: (3, 3) information of the scan alone (without the prior).
+    """
+
+    pose: np.ndarray
+    covariance: np.ndarray
+    score: float
+    ok: bool
+    reason: str
+    degenerate: bool = False
+    correlation: float = 0.0
+    points: int = 0
+    inliers: int = 0
+    iterations: int = 0
+    information: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+
+
+# ---------------------------------------------------------------------------------------------
+# reference and matcher
+
+
+class ReferenceMap:
+    """Reference points prepared for matching: two likelihood fields and a KD-tree of the
+    line-like points with their normals. Build once, match many scans against it.
+
+    Args:
+        points: (m, 2) reference points (m), in the frame the poses are expressed in.
+        normals: (m, 2) their unit normals and ``linear`` (m,) whether each lies on a line;
+            both estimated from the points when None.
+        config: the matcher parameters.
+    """
+
+    def __init__(self, points: np.ndarray, config: FrontendConfig = FrontendConfig(), *,
+                 normals: np.ndarray | None = None, linear: np.ndarray | None = None) -> None:
+        points = np.asarray(points, dtype=float).reshape(-1, 2)
+        if not np.all(np.isfinite(points)):
+            raise InputError("reference points must be finite")
+        self.config = config
+        self.points = points
+        if normals is None or linear is None:
+            normals, linear = estimate_normals(points, config.normal_neighbours)
+        self.size = points.shape[0]
+        self.usable = self.size >= config.min_points and int(np.count_nonzero(linear)) >= 3
+        if not self.usable:
+            return
+        window = config.search_window_m
+        self.coarse = LikelihoodField.build(points, 0.5 * config.coarse_step_m, config.coarse_sigma_m, window)
+        self.fine = LikelihoodField.build(points, config.fine_step_m, config.fine_sigma_m,
+                                          window + config.coarse_step_m)
+        self.line_points = points[linear]
+        self.line_normals = np.asarray(normals, dtype=float)[linear]
+        self.tree = cKDTree(self.line_points)
+
+    def extend(self, points: np.ndarray, normals: np.ndarray, linear: np.ndarray) -> bool:
+        """Add reference points (with normals and line flags) in place: both fields are
+        raised where the new points fall inside the grids built, and the KD-tree is rebuilt.
+        Returns False (nothing changed) when the map was not usable; build anew then."""
+        if not self.usable:
+            return False
+        points = np.asarray(points, dtype=float).reshape(-1, 2)
+        self.coarse.add(points)
+        self.fine.add(points)
+        self.points = np.concatenate((self.points, points))
+        self.size = self.points.shape[0]
+        self.line_points = np.concatenate((self.line_points, points[linear]))
+        self.line_normals = np.concatenate((self.line_normals, np.asarray(normals, dtype=float)[linear]))
+        self.tree = cKDTree(self.line_points)
+        return True
+
+    # -- correlative search ------------------------------------------------------------------
+
+    def correlative(self, points: np.ndarray, guess: np.ndarray) -> tuple[np.ndarray, float]:
+        """Best pose (3,) of the two-level correlative search around ``guess`` and its fine
+        mean likelihood."""
+        cfg = self.config
+        guess = np.asarray(guess, dtype=float)
+        n_rot = int(np.floor(cfg.search_window_rad / cfg.coarse_step_rad + 1e-9))
+        rots = guess[2] + cfg.coarse_step_rad * np.arange(-n_rot, n_rot + 1)
+        poses = np.column_stack((np.full_like(rots, guess[0]), np.full_like(rots, guess[1]), rots))
+        res_c = self.coarse.resolution
+        step_c = max(1, int(round(cfg.coarse_step_m / res_c)))
+        offsets = _offset_grid(int(round(cfg.search_window_m / res_c)), step_c)
+        score = self.coarse.score_poses(points, poses, offsets)            # (r, t)
+        # Quadratic tie-break towards the guess: −w at the window's corner.
+        dxy = offsets * res_c
+        prior = (np.sum(dxy ** 2, axis=1)[None, :] / (2 * cfg.search_window_m ** 2)
+                 + ((rots - guess[2]) ** 2)[:, None] / (2 * cfg.search_window_rad ** 2))
+        score = score - cfg.search_prior_weight * prior
+        candidates = _distinct_maxima(score, cfg.coarse_candidates,
+                                      rot_sep=2, off=offsets, off_sep=2 * step_c)
+        # Fine level: ±1 coarse step (rotation and translation) around each candidate: the
+        # blurred coarse peak can sit a whole step from the true one.
+        n_fine_rot = int(round(cfg.coarse_step_rad / cfg.fine_step_rad))
+        fine_rot = cfg.fine_step_rad * np.arange(-n_fine_rot, n_fine_rot + 1)
+        centres = np.array([[guess[0] + offsets[t, 0] * res_c, guess[1] + offsets[t, 1] * res_c, rots[r]]
+                            for r, t in candidates])
+        fine_poses = np.repeat(centres, fine_rot.shape[0], axis=0)
+        fine_poses[:, 2] += np.tile(fine_rot, centres.shape[0])
+        res_f = self.fine.resolution
+        fine_offsets = _offset_grid(int(round(cfg.coarse_step_m / res_f)), 1)
+        fine = self.fine.score_poses(points, fine_poses, fine_offsets)
+        dxy = fine_poses[:, None, :2] + fine_offsets[None, :, :] * res_f - guess[:2]
+        fprior = (np.sum(dxy ** 2, axis=2) / (2 * cfg.search_window_m ** 2)
+                  + ((fine_poses[:, 2] - guess[2]) ** 2)[:, None] / (2 * cfg.search_window_rad ** 2))
+        total = fine - cfg.search_prior_weight * fprior
+        p, t = np.unravel_index(int(np.argmax(total)), total.shape)
+        best = fine_poses[p].copy()
+        best[:2] += fine_offsets[t] * res_f
+        return best, float(fine[p, t])
+
+    # -- refinement ------------------------------------------------------------------------
+
+    def refine(self, points: np.ndarray, start: np.ndarray, prior_mean: np.ndarray,
+               prior_information: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+        """Robust point-to-line Gauss–Newton from ``start``.
+
+        Returns:
+            pose (3,), the scan's information (3, 3) in units of 1/σ² (without the prior),
+            the final residuals (n,) (NaN where no correspondence), weights (n,), iterations.
+        """
+        cfg = self.config
+        x = np.asarray(start, dtype=float).copy()
+        sigma2 = cfg.range_sigma_m ** 2 * cfg.covariance_inflation
+        gate = cfg.icp_max_distance_m
+        it = 0
+        for it in range(1, cfg.icp_iterations + 1):
+            r, J, w, _ = self._residuals(points, x, gate)
+            H = (J * w[:, None]).T @ J / sigma2 + prior_information
+            e = x - prior_mean
+            e[2] = wrap_angle(e[2])
+            g = (J * w[:, None]).T @ r / sigma2 + prior_information @ e
+            try:
+                delta = -np.linalg.solve(H, g)
+            except np.linalg.LinAlgError:
+                break
+            x = x + delta
+            x[2] = wrap_angle(x[2])
+            small = np.hypot(delta[0], delta[1]) < 2e-4 and abs(delta[2]) < 2e-4
+            if small and gate <= cfg.icp_min_distance_m:
+                break
+            # The correlative start is within a fine step: the wide gate is only needed to
+            # pull in points the first step, then it shrinks to the final one.
+            gate = max(cfg.icp_min_distance_m, 0.5 * gate)
+        r, J, w, found = self._residuals(points, x, gate)
+        info = (J * w[:, None]).T @ J
+        residuals = np.full(points.shape[0], np.nan)
+        residuals[found] = r
+        weights = np.zeros(points.shape[0])
+        weights[found] = w
+        return x, info, residuals, weights, it
+
+    def _residuals(self, points: np.ndarray, x: np.ndarray, gate: float):
+        c, s = np.cos(x[2]), np.sin(x[2])
+        px, py = points[:, 0], points[:, 1]
+        wx, wy = c * px - s * py + x[0], s * px + c * py + x[1]
+        dist, idx = self.tree.query(np.column_stack((wx, wy)), distance_upper_bound=gate)
+        found = np.isfinite(dist)
+        idx = idx[found]
+        q, n = self.line_points[idx], self.line_normals[idx]
+        wx, wy, px, py = wx[found], wy[found], px[found], py[found]
+        r = n[:, 0] * (wx - q[:, 0]) + n[:, 1] * (wy - q[:, 1])
+        J = np.column_stack((n[:, 0], n[:, 1], n[:, 0] * (-s * px - c * py) + n[:, 1] * (c * px - s * py)))
+        a = np.abs(r)
+        w = np.where(a <= self.config.huber_m, 1.0, self.config.huber_m / np.maximum(a, 1e-12))
+        return r, J, w, found
+
+    # -- the whole match ---------------------------------------------------------------------
+
+    def match(self, points: np.ndarray, guess: np.ndarray, prior_covariance: np.ndarray | None = None) -> MatchResult:
+        """Match robot-frame scan ``points`` (n, 2) around the pose ``guess`` (3,).
+
+        Args:
+            prior_covariance: (3, 3) covariance of the guess in the reference frame; the
+                refinement's weak prior and the covariance returned when the match fails.
+                None: a diagonal one from the search window.
+
+        Returns:
+            :class:`MatchResult`; ``ok`` False means: use the guess.
+        """
+        cfg = self.config
+        guess = np.asarray(guess, dtype=float).reshape(3)
+        if prior_covariance is None:
+            prior_covariance = np.diag([cfg.search_window_m ** 2, cfg.search_window_m ** 2,
+                                        cfg.search_window_rad ** 2])
+        prior_covariance = np.asarray(prior_covariance, dtype=float)
+        points = np.asarray(points, dtype=float).reshape(-1, 2)
+
+        def fail(reason: str, score: float = 0.0, **extra) -> MatchResult:
+            return MatchResult(guess.copy(), prior_covariance.copy(), score, False, reason, **extra)
+
+        if not self.usable:
+            return fail("too_few_reference_points")
+        keep = voxel_thin(points, cfg.scan_voxel_m)
+        pts = points[keep]
+        if pts.shape[0] < cfg.min_points:
+            return fail("too_few_scan_points", points=int(pts.shape[0]))
+        pts = pts[even_subset(pts.shape[0], cfg.max_scan_points)]
+        search = pts[even_subset(pts.shape[0], cfg.search_points)]
+
+        start, correlation = self.correlative(search, guess)
+        prior_info = np.linalg.inv(prior_covariance)
+        pose, info, residuals, weights, iterations = self.refine(pts, start, guess, prior_info)
+
+        found = np.isfinite(residuals)
+        inliers = int(np.count_nonzero(found & (np.abs(np.nan_to_num(residuals)) < cfg.inlier_distance_m)))
+        n = pts.shape[0]
+        score = inliers / n
+        base = dict(correlation=correlation, points=n, inliers=inliers, iterations=iterations, information=info)
+        if np.count_nonzero(found) < cfg.min_points:
+            return fail("too_few_correspondences", **base)
+        if score < cfg.min_inlier_fraction:
+            return fail("poor_score", score, **base)
+
+        # Residual σ: the stated one, or the (Huber-weighted) estimate when larger.
+        r = residuals[found]
+        w = weights[found]
+        dof = max(1.0, float(np.sum(w)) - 3.0)
+        sigma2_hat = float(np.sum(w * r * r)) / dof
+        sigma2 = max(cfg.range_sigma_m ** 2, sigma2_hat) * cfg.covariance_inflation
+        info_scan = info / sigma2
+        cov = np.linalg.inv(info_scan + prior_info)
+        cov = 0.5 * (cov + cov.T) + np.diag([cfg.min_sigma_xy_m ** 2, cfg.min_sigma_xy_m ** 2, cfg.min_sigma_rad ** 2])
+        eig = np.linalg.eigvalsh(info[:2, :2])
+        degenerate = bool(eig[0] < cfg.degenerate_ratio * max(eig[1], 1e-12))
+        return MatchResult(pose, cov, score, True, "ok", degenerate, **base)
+
+
+def _distinct_maxima(score: np.ndarray, k: int, *, rot_sep: int, off: np.ndarray, off_sep: int) -> list[tuple[int, int]]:
+    """Up to ``k`` (rotation, offset) indices of the highest scores, each at least
+    ``rot_sep`` rotation steps or ``off_sep`` cells from those already taken."""
+    order = np.argsort(score, axis=None)[::-1]
+    r_all, t_all = np.unravel_index(order, score.shape)
+    taken: list[tuple[int, int]] = []
+    alive = np.ones(order.shape[0], dtype=bool)
+    for _ in range(k):
+        live = np.flatnonzero(alive)
+        if live.shape[0] == 0:
+            break
+        j = live[0]
+        r, t = int(r_all[j]), int(t_all[j])
+        taken.append((r, t))
+        near = (np.abs(r_all - r) < rot_sep) & (np.max(np.abs(off[t_all] - off[t]), axis=1) < off_sep)
+        alive &= ~near
+    return taken
+
+
+def match_scan(reference_points: np.ndarray, points: np.ndarray, guess: np.ndarray,
+               config: FrontendConfig = FrontendConfig(), prior_covariance: np.ndarray | None = None) -> MatchResult:
+    """One-off match of robot-frame scan ``points`` (n, 2) against ``reference_points``
+    (m, 2) around the robot pose ``guess`` (3,) in the reference frame. Build a
+    :class:`ReferenceMap` instead to match several scans against the same reference."""
+    return ReferenceMap(reference_points, config).match(points, guess, prior_covariance)
+
+
+def transform_points(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Points (n, 2) of the frame at ``pose`` expressed in the parent frame."""
+    pts = np.column_stack((points, np.zeros(points.shape[0])))
+    return compose(np.asarray(pose, dtype=float)[None, :], pts)[:, :2]

@@ -1,0 +1,131 @@
+"""LaserOdometry: increments on simulated runs, fallbacks, and (when the logs are present)
+a short real log."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bsslam.config import MotionNoiseConfig
+from bsslam.dataset import Frame
+from bsslam.eval import ate
+from bsslam.frontend import FrontendConfig, LaserOdometry
+from bsslam.scan.laser_scan import LaserScan
+from bsslam.se2 import between, compose
+from bsslam.sim import SimConfig, get_world, simulate
+from bsslam.trajectory import Trajectory
+
+DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+
+
+def _run(frames, config=FrontendConfig()):
+    lo = LaserOdometry(config)
+    return lo, [lo.step(f) for f in frames]
+
+
+def test_first_frame_starts_at_odometry_and_reports_no_increment():
+    data = simulate(get_world("mixed"), SimConfig(), seed=0, steps=3)
+    frames = list(data)
+    lo, out = _run(frames)
+    assert out[0].increment is None and out[0].covariance is None and out[0].keyframe
+    np.testing.assert_array_equal(out[0].pose, frames[0].odometry)
+    for k in (1, 2):
+        assert out[k].increment.shape == (3,) and out[k].covariance.shape == (3, 3)
+        np.testing.assert_allclose(out[k].pose, compose(out[k - 1].pose, out[k].increment), atol=1e-12)
+        np.testing.assert_allclose(out[k].odometry_increment, between(frames[k - 1].odometry, frames[k].odometry))
+        assert np.all(np.linalg.eigvalsh(out[k].covariance) > 0)
+    assert lo.stats.frames == 3 and lo.stats.matched == 2 and lo.stats.fallbacks == 0
+
+
+@pytest.mark.parametrize("world", ["mixed", "rounded-room"])
+def test_drift_far_below_odometry_on_a_simulated_run(world):
+    # Odometry three times noisier than the simulator's default, so it drifts visibly.
+    motion = MotionNoiseConfig()
+    motion = replace(motion, a_xy_m=3 * motion.a_xy_m, b_xy=3 * motion.b_xy, a_phi_rad=3 * motion.a_phi_rad,
+                     b_phi=3 * motion.b_phi)
+    data = simulate(get_world(world), SimConfig(sigma_range_m=0.01, motion=motion), seed=4, steps=120)
+    frames, truth = list(data), data.ground_truth
+    lo, out = _run(frames)
+    stamps = np.array([f.stamp for f in frames])
+    est = Trajectory(stamps, np.array([o.pose for o in out]))
+    odo = Trajectory(stamps, np.array([f.odometry for f in frames]))
+    ate_fe, ate_odo = ate(est, truth)[0], ate(odo, truth)[0]
+    assert lo.stats.fallbacks == 0
+    assert ate_fe < 0.2 * ate_odo, (ate_fe, ate_odo)
+    assert ate_fe < 0.1
+    # Increments: each error within 4σ of its covariance (the covariance is not overconfident).
+    true_inc = between(truth.poses[:-1], truth.poses[1:])
+    for o, t in zip(out[1:], true_inc):
+        e = between(t, o.increment)
+        assert e @ np.linalg.solve(o.covariance, e) < 16.0 * 3
+    print(f"{world}: ATE front end {ate_fe:.3f} m, odometry {ate_odo:.3f} m")
+
+
+def test_empty_scans_fall_back_to_odometry_and_are_counted():
+    data = simulate(get_world("mixed"), SimConfig(), seed=2, steps=8)
+    frames = list(data)
+    empty = LaserScan(0.0, frames[0].scan.angles, np.full(frames[0].scan.angles.shape, np.inf), 8.0)
+    frames[4] = Frame(frames[4].stamp, frames[4].odometry, empty, frames[4].laser_offset)
+    frames[5] = Frame(frames[5].stamp, frames[5].odometry, empty, frames[5].laser_offset)
+    config = FrontendConfig()
+    lo, out = _run(frames, config)
+    for k in (4, 5):
+        assert out[k].fallback
+        np.testing.assert_allclose(out[k].increment, out[k].odometry_increment)
+        np.testing.assert_allclose(out[k].covariance, lo.odometry_covariance(out[k].odometry_increment))
+    assert lo.stats.fallbacks == 2
+    assert lo.stats.reasons == {"too_few_scan_points": 2}
+    # The scan after the gap is matched again.
+    assert not out[6].fallback and not out[7].fallback
+
+
+def test_all_empty_scans_never_match():
+    data = simulate(get_world("mixed"), SimConfig(), seed=2, steps=4)
+    frames = [Frame(f.stamp, f.odometry, LaserScan(0.0, np.zeros(0), np.zeros(0), 8.0)) for f in data]
+    lo, out = _run(frames)
+    assert all(o.fallback for o in out[1:])
+    assert lo.stats.fallbacks == 3 and lo.stats.matched == 0
+    np.testing.assert_allclose(out[-1].pose, frames[-1].odometry, atol=1e-9)
+
+
+def test_laser_offset_does_not_bias_the_increments():
+    data = simulate(get_world("mixed"), SimConfig(), seed=5, steps=15)
+    frames, truth = list(data), data.ground_truth
+    # Re-cast the scans from a laser mounted 0.3 m ahead, turned 0.2 rad.
+    from bsslam.sim import ray_cast
+    offset = np.array([0.3, 0.05, 0.2])
+    world = get_world("mixed")
+    moved = []
+    for f, pose in zip(frames, truth.poses):
+        lp = compose(pose, offset)
+        ranges = ray_cast(world.walls, lp[:2], lp[2] + f.scan.angles, f.scan.max_range)
+        ranges = np.where(np.isfinite(ranges), ranges, f.scan.max_range)
+        moved.append(Frame(f.stamp, f.odometry, LaserScan(f.stamp, f.scan.angles, ranges, f.scan.max_range), offset))
+    lo, out = _run(moved)
+    true_inc = between(truth.poses[:-1], truth.poses[1:])
+    err = np.array([between(t, o.increment) for o, t in zip(out[1:], true_inc)])
+    assert lo.stats.fallbacks == 0
+    assert np.max(np.hypot(err[:, 0], err[:, 1])) < 0.01 and np.max(np.abs(err[:, 2])) < math.radians(0.3)
+
+
+@pytest.mark.skipif(not (DATA / "intel" / "intel-noisy.clf").exists(), reason="shared/data logs not present")
+def test_short_real_log_beats_odometry():
+    from bsslam.io.open_dataset import open_dataset
+    from bsslam.io.trajectory_file import read_trajectory
+
+    frames = []
+    for i, f in enumerate(open_dataset(DATA / "intel" / "intel-noisy.clf")):
+        if i >= 150:
+            break
+        frames.append(f)
+    ref = read_trajectory(DATA / "intel" / "intel-noisy.gt.txt")
+    lo, out = _run(frames)
+    stamps = np.array([f.stamp for f in frames])
+    est = Trajectory(stamps, np.array([o.pose for o in out]))
+    odo = Trajectory(stamps, np.array([f.odometry for f in frames]))
+    assert ate(est, ref)[0] < 0.5 * ate(odo, ref)[0]
+    assert lo.stats.fallbacks <= 5

@@ -1,0 +1,179 @@
+"""The scan matcher on synthetic scans: recovery from a poor guess, covariance
+consistency, degenerate and empty input."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from bsslam.errors import ConfigError
+from bsslam.frontend import FrontendConfig, ReferenceMap, match_scan, scan_points
+from bsslam.frontend.scan_matcher import LikelihoodField, transform_points
+from bsslam.scan.laser_scan import LaserScan
+from bsslam.se2 import between
+from bsslam.sim import Arc, SimConfig, WallSet, get_world, simulate
+
+from .cases import ANGLES, cast_scan, corridor, perturbation, pose_error, room
+
+CFG = FrontendConfig()
+
+
+def _room_pair(rng, motion=(0.4, 0.15, math.radians(12.0)), sigma=0.005):
+    walls = room()
+    a = np.array([-1.0, -0.5, 0.3])
+    b = np.array([a[0] + motion[0], a[1] + motion[1], a[2] + motion[2]])
+    ref = scan_points(cast_scan(walls, a, rng, sigma), None, CFG)
+    cur = scan_points(cast_scan(walls, b, rng, sigma), None, CFG)
+    return ref, cur, between(a, b)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_recovers_transform_from_a_poor_guess_in_a_room(seed):
+    rng = np.random.default_rng(seed)
+    ref, cur, true = _room_pair(rng)
+    result = match_scan(ref, cur, true + perturbation(rng, 0.3, 20.0))
+    assert result.ok and result.reason == "ok" and not result.degenerate
+    err = pose_error(result.pose, true)
+    assert np.hypot(err[0], err[1]) < 0.005
+    assert abs(err[2]) < 0.003
+    assert result.score > 0.8
+
+
+def test_recovers_simulated_motion_from_a_poor_guess():
+    data = simulate(get_world("mixed"), SimConfig(), seed=1, steps=30)
+    frames, gt = list(data), data.ground_truth.poses
+    rng = np.random.default_rng(7)
+    for k in range(0, 29, 4):
+        ref = ReferenceMap(scan_points(frames[k].scan, frames[k].laser_offset, CFG))
+        true = between(gt[k], gt[k + 1])
+        result = ref.match(scan_points(frames[k + 1].scan, frames[k + 1].laser_offset, CFG),
+                           true + perturbation(rng, 0.3, 20.0))
+        err = pose_error(result.pose, true)
+        assert result.ok
+        assert np.hypot(err[0], err[1]) < 0.01 and abs(err[2]) < 0.004, (k, err)
+
+
+def test_laser_offset_is_applied():
+    offset = np.array([0.2, -0.1, 0.1])
+    scan = LaserScan(0.0, np.array([0.0, 0.5]), np.array([1.0, 2.0]), 30.0)
+    pts = scan_points(scan, offset, CFG)
+    expected = transform_points(offset, np.array([[1.0, 0.0], [2 * math.cos(0.5), 2 * math.sin(0.5)]]))
+    np.testing.assert_allclose(pts, expected, atol=1e-12)
+
+
+def _nees_samples(config, sigma, seeds=range(4), per_seed=10):
+    nees = []
+    for seed in seeds:
+        data = simulate(get_world("mixed"), SimConfig(sigma_range_m=sigma), seed=seed, steps=per_seed + 1)
+        frames, gt = list(data), data.ground_truth.poses
+        rng = np.random.default_rng(100 + seed)
+        for k in range(per_seed):
+            true = between(gt[k], gt[k + 1])
+            result = ReferenceMap(scan_points(frames[k].scan, None, config), config).match(
+                scan_points(frames[k + 1].scan, None, config), true + perturbation(rng, 0.2, 10.0))
+            assert result.ok
+            e = pose_error(result.pose, true)
+            nees.append(e @ np.linalg.solve(result.covariance, e))
+    return np.array(nees)
+
+
+def test_gauss_newton_covariance_is_consistent_without_inflation():
+    """With independent range noise, no inflation and no floors, the NEES of the matches
+    over seeds lies in the two-sided 99.9 % χ² band of its mean (3 dof each)."""
+    config = FrontendConfig(covariance_inflation=1.0, range_sigma_m=0.001, min_sigma_xy_m=0.0, min_sigma_rad=0.0)
+    nees = _nees_samples(config, sigma=0.01)
+    n = nees.shape[0]
+    lo, hi = chi2.ppf([0.0005, 0.9995], 3 * n) / n
+    assert lo < nees.mean() < hi, nees.mean()
+
+
+def test_default_covariance_is_not_overconfident():
+    """The default (inflated for real scans) covariance bounds the simulated errors."""
+    nees = _nees_samples(CFG, sigma=0.01, seeds=range(2))
+    assert nees.mean() < chi2.ppf(0.999, 3 * nees.shape[0]) / nees.shape[0]
+    assert np.all(nees < chi2.ppf(0.999, 3))
+
+
+def test_corridor_is_flagged_degenerate_and_keeps_the_guess_along_it():
+    rng = np.random.default_rng(3)
+    walls = corridor()
+    a, b = np.array([0.0, 0.1, 0.05]), np.array([0.5, 0.0, 0.15])
+    ref = scan_points(cast_scan(walls, a, rng, 0.005, max_range=8.0), None, CFG)
+    cur = scan_points(cast_scan(walls, b, rng, 0.005, max_range=8.0), None, CFG)
+    true = between(a, b)
+    guess = true + np.array([0.2, 0.1, math.radians(5.0)])
+    prior = np.diag([0.1 ** 2, 0.1 ** 2, math.radians(5.0) ** 2])
+    result = ReferenceMap(ref).match(cur, guess, prior)
+    assert result.ok and result.degenerate
+    # Across the corridor and in rotation the scan decides …
+    c, s = math.cos(a[2]), math.sin(a[2])
+    across = np.array([s, c])            # world y (across the corridor) in the frame of pose a
+    along = np.array([c, -s])            # world x (along it)
+    err = pose_error(result.pose, true)
+    assert abs(err[:2] @ across) < 0.01 and abs(err[2]) < 0.005
+    # … along it the prior (guess) does, and the covariance says it is unknown there.
+    assert abs((result.pose[:2] - guess[:2]) @ along) < 0.02
+    sigma_along = math.sqrt(along @ result.covariance[:2, :2] @ along)
+    sigma_across = math.sqrt(across @ result.covariance[:2, :2] @ across)
+    assert sigma_along > 0.05 and sigma_along > 5 * sigma_across
+
+
+def test_empty_and_tiny_inputs_fall_back_cleanly():
+    rng = np.random.default_rng(0)
+    ref, cur, true = _room_pair(rng)
+    guess = true + np.array([0.1, 0.0, 0.05])
+    prior = np.diag([0.01, 0.01, 0.001])
+    empty = match_scan(ref, np.zeros((0, 2)), guess, prior_covariance=prior)
+    assert not empty.ok and empty.reason == "too_few_scan_points"
+    np.testing.assert_array_equal(empty.pose, guess)
+    np.testing.assert_array_equal(empty.covariance, prior)
+    few = match_scan(ref, cur[:10], guess)
+    assert not few.ok and few.reason == "too_few_scan_points"
+    for reference in (np.zeros((0, 2)), ref[:5]):
+        r = match_scan(reference, cur, guess, prior_covariance=prior)
+        assert not r.ok and r.reason == "too_few_reference_points"
+        np.testing.assert_array_equal(r.pose, guess)
+
+
+def test_unrelated_scan_is_not_trusted():
+    """A scan of a different place (a round room against a square one) is rejected, not
+    forced. (Two straight walls against a square room can fit well enough to pass: the
+    trust test is a floor on the inlier fraction, not a place recogniser.)"""
+    rng = np.random.default_rng(2)
+    ref, _, _ = _room_pair(rng)
+    round_room = WallSet((Arc((0.0, 0.0), 2.5, 0.0, 2 * math.pi),))
+    other = scan_points(cast_scan(round_room, np.array([0.5, 0.0, 0.7]), rng, 0.005), None, CFG)
+    result = match_scan(ref, other, np.zeros(3))
+    assert not result.ok and result.reason in ("poor_score", "too_few_correspondences")
+
+
+def test_no_return_and_invalid_beams_are_dropped():
+    ranges = np.full(ANGLES.shape, 3.0)
+    ranges[:10] = np.nan
+    ranges[10:20] = 30.0       # max range: no return
+    ranges[20:25] = 0.01       # too close
+    ranges[25:30] = 45.0       # beyond max_range_m
+    pts = scan_points(LaserScan(0.0, ANGLES, ranges, 50.0), None, FrontendConfig(max_range_m=30.0))
+    assert pts.shape == (ANGLES.shape[0] - 30, 2)
+
+
+def test_likelihood_field_peaks_at_reference_points():
+    points = np.array([[0.0, 0.0], [1.0, 0.5]])
+    field = LikelihoodField.build(points, 0.05, 0.1, 0.5)
+    at = field.values[field.cell_index(points + 0.01)]
+    np.testing.assert_allclose(at, 1.0)
+    far = field.values[field.cell_index(np.array([[0.0, 0.6], [3.0, 3.0]]))]
+    assert np.all(far == 0.0)
+    assert field.values.max() <= 1.0
+
+
+def test_config_is_validated():
+    with pytest.raises(ConfigError):
+        FrontendConfig(search_window_m=0.0)
+    with pytest.raises(ConfigError):
+        FrontendConfig(fine_step_m=0.5)
+    with pytest.raises(ConfigError):
+        FrontendConfig(min_inlier_fraction=1.5)
