@@ -15,6 +15,7 @@ from threadpoolctl import threadpool_limits
 
 from bsslam.config import SLAMConfig
 from bsslam.dataset import Dataset, SkipCounter
+from bsslam.frontend import LaserOdometry
 from bsslam.slam import MapSpline, SplineSLAM
 from bsslam.slam.enlarge import beam_points
 from bsslam.se2 import between
@@ -88,15 +89,27 @@ def _run(dataset, config, steps, progress, total, point_stride, slam) -> RunResu
     points = []
     totals: dict[str, int] = {}
     prev_odo = None
+    frontend = LaserOdometry(config.frontend) if config.frontend.enabled else None
     for i, frame in enumerate(dataset):
         if steps is not None and i >= steps:
             break
         if slam is None:
             slam = SplineSLAM(config, initial_pose=frame.odometry)
-        delta = None if prev_odo is None else between(prev_odo, frame.odometry)
-        prev_odo = frame.odometry
         t0 = time.perf_counter()
-        report = slam.step(delta, frame.scan, frame.laser_offset)
+        if frontend is not None:
+            # the front end's increment and covariance replace the odometry's; its cost is
+            # part of the step's
+            matched = frontend.step(frame)
+            delta, delta_cov = matched.increment, matched.covariance
+            if i and not matched.fallback:
+                totals["frontend_matched"] = totals.get("frontend_matched", 0) + 1
+            elif i:
+                totals["frontend_fallbacks"] = totals.get("frontend_fallbacks", 0) + 1
+        else:
+            delta = None if prev_odo is None else between(prev_odo, frame.odometry)
+            delta_cov = None
+        prev_odo = frame.odometry
+        report = slam.step(delta, frame.scan, frame.laser_offset, odometry_covariance=delta_cov)
         step_times.append(time.perf_counter() - t0)
         stamps.append(frame.stamp)
         poses.append(slam.pose)

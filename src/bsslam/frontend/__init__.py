@@ -2,7 +2,7 @@
 per-scan odometry that turns raw odometry increments into scan-matched ones with a
 covariance."""
 
-from bsslam.frontend.config import FrontendConfig
+from bsslam.config import FrontendConfig
 from bsslam.frontend.laser_odometry import FrontendStats, FrontendStep, LaserOdometry
 from bsslam.frontend.scan_matcher import MatchResult, ReferenceMap, match_scan, scan_points
 

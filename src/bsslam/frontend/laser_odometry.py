@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bsslam.dataset import Frame
-from bsslam.frontend.config import FrontendConfig
+from bsslam.config import FrontendConfig
 from bsslam.frontend.scan_matcher import MatchResult, ReferenceMap, estimate_normals, scan_points, voxel_thin
 from bsslam.se2 import between, compose
 

@@ -33,7 +33,7 @@ from scipy.spatial import cKDTree
 
 from bsslam.config import SegmentationConfig
 from bsslam.errors import InputError
-from bsslam.frontend.config import FrontendConfig
+from bsslam.config import FrontendConfig
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.scan.segment import valid_beams
 from bsslam.se2 import compose
