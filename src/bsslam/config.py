@@ -229,6 +229,10 @@ class FrontendConfig:
         scan-matched increments with their covariance instead of the raw odometry. On by
         default for real logs; the simulator's experiments turn it off (they test the
         paper's filter against the odometry model they simulate).
+    update_distance_m, update_angle_rad: the filter processes a scan once the robot has
+        moved this far (m) or turned this much (rad) since the last scan it processed
+        (GMapping's linearUpdate/angularUpdate, Karto's minimum travel); the scans in between
+        only feed the front end. 0 and 0 process every scan.
 
     Beams and points
         min_range_m: beams at or below this range are dropped (m).
@@ -308,6 +312,8 @@ class FrontendConfig:
 
     # beams and points
     enabled: bool = True
+    update_distance_m: float = 0.5
+    update_angle_rad: float = math.radians(15.0)
     min_range_m: float = 0.05
     max_range_m: float = 30.0
     scan_voxel_m: float = 0.1
@@ -362,7 +368,8 @@ class FrontendConfig:
             _check(getattr(self, name) > 0, f"frontend.{name} must be > 0, got {getattr(self, name)!r}")
         nonneg = ("min_range_m", "keyframe_distance_m", "keyframe_angle_rad", "search_prior_weight",
                   "min_sigma_xy_m", "min_sigma_rad", "odom_sigma_xy_m", "odom_sigma_xy_per_m", "odom_sigma_rad",
-                  "odom_sigma_rad_per_rad", "odom_sigma_rad_per_m", "degenerate_ratio")
+                  "odom_sigma_rad_per_rad", "odom_sigma_rad_per_m", "degenerate_ratio",
+                  "update_distance_m", "update_angle_rad")
         for name in nonneg:
             _check(getattr(self, name) >= 0, f"frontend.{name} must be ≥ 0, got {getattr(self, name)!r}")
         _check(self.max_range_m > self.min_range_m, "frontend.max_range_m must exceed min_range_m")

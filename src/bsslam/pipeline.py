@@ -15,7 +15,7 @@ from threadpoolctl import threadpool_limits
 
 from bsslam.config import SLAMConfig
 from bsslam.dataset import Dataset, SkipCounter
-from bsslam.frontend import LaserOdometry
+from bsslam.frontend import LaserOdometry, UpdateSchedule
 from bsslam.slam import MapSpline, SplineSLAM
 from bsslam.slam.enlarge import beam_points
 from bsslam.se2 import between
@@ -39,7 +39,7 @@ class RunResult:
         ground_truth: the dataset's reference, if it has one.
         map: the final map splines with their covariance blocks.
         wall_time_s: time spent in the filter (s), excluding reading the input.
-        step_times_s: (N,) time of each filter step (s).
+        step_times_s: (N,) time spent on each scan (s): front end and, where it ran, filter.
         state_sizes: (N,) state dimension after each step.
         totals: summed counters of the step reports (beams used/dropped, new/extended splines …).
         nis: (N,) NIS of each step's update and (N,) its degrees of freedom.
@@ -84,52 +84,72 @@ def run_dataset(dataset: Dataset, config: SLAMConfig, *, steps: int | None = Non
         return _run(dataset, config, steps, progress, total, point_stride, slam)
 
 
+class _OdometryMotion:
+    """Raw odometry increments under the filter's motion model; every scan is a filter step."""
+
+    def __init__(self) -> None:
+        self._prev: np.ndarray | None = None
+
+    def next(self, frame, totals: dict[str, int]):
+        """(run the filter?, increment or None, its covariance or None) for one frame."""
+        delta = None if self._prev is None else between(self._prev, frame.odometry)
+        self._prev = np.asarray(frame.odometry, dtype=float)
+        return True, delta, None
+
+
+class _FrontendMotion:
+    """Scan-matched increments with their covariance; the filter runs on the scans the
+    update schedule picks, the others only feed the front end."""
+
+    def __init__(self, config) -> None:
+        self.odometry = LaserOdometry(config)
+        self.schedule = UpdateSchedule(config.update_distance_m, config.update_angle_rad)
+
+    def next(self, frame, totals: dict[str, int]):
+        matched = self.odometry.step(frame)
+        if matched.increment is None:  # the first frame
+            return True, None, None
+        key = "frontend_fallbacks" if matched.fallback else "frontend_matched"
+        totals[key] = totals.get(key, 0) + 1
+        if not self.schedule.add(matched.increment, matched.covariance):
+            return False, None, None
+        delta, cov = self.schedule.take()
+        return True, delta, cov
+
+
 def _run(dataset, config, steps, progress, total, point_stride, slam) -> RunResult:
     stamps, poses, covs, odo, step_times, sizes, nis, dof = [], [], [], [], [], [], [], []
     points = []
     totals: dict[str, int] = {}
-    prev_odo = None
-    frontend = LaserOdometry(config.frontend) if config.frontend.enabled else None
+    motion = _FrontendMotion(config.frontend) if config.frontend.enabled else _OdometryMotion()
     for i, frame in enumerate(dataset):
         if steps is not None and i >= steps:
             break
         if slam is None:
             slam = SplineSLAM(config, initial_pose=frame.odometry)
         t0 = time.perf_counter()
-        if frontend is not None:
-            # the front end's increment and covariance replace the odometry's; its cost is
-            # part of the step's
-            matched = frontend.step(frame)
-            delta, delta_cov = matched.increment, matched.covariance
-            if i and not matched.fallback:
-                totals["frontend_matched"] = totals.get("frontend_matched", 0) + 1
-            elif i:
-                totals["frontend_fallbacks"] = totals.get("frontend_fallbacks", 0) + 1
+        run_filter, delta, delta_cov = motion.next(frame, totals)
+        if run_filter:
+            report = slam.step(delta, frame.scan, frame.laser_offset, odometry_covariance=delta_cov)
+            pose, cov = slam.pose, slam.pose_covariance
         else:
-            delta = None if prev_odo is None else between(prev_odo, frame.odometry)
-            delta_cov = None
-        prev_odo = frame.odometry
-        report = slam.step(delta, frame.scan, frame.laser_offset, odometry_covariance=delta_cov)
+            report = None
+            pose, cov = motion.schedule.pose_between_updates(slam.pose, slam.pose_covariance)
         step_times.append(time.perf_counter() - t0)
         stamps.append(frame.stamp)
-        poses.append(slam.pose)
-        covs.append(slam.pose_covariance)
+        poses.append(pose)
+        covs.append(cov)
         odo.append(np.asarray(frame.odometry, dtype=float))
-        sizes.append(report.state_size)
-        nis.append(report.nis)
-        dof.append(report.nis_dof)
-        for key in ("observed_splines", "matched_splines", "new_splines", "extended_splines",
-                    "pruned_splines", "beams_used"):
-            totals[key] = totals.get(key, 0) + int(getattr(report, key))
-        for reason, count in report.beams_dropped.items():
-            totals[f"beams_dropped_{reason}"] = totals.get(f"beams_dropped_{reason}", 0) + count
-        for reason, count in report.scan_counts.items():
-            totals[f"scan_{reason}"] = totals.get(f"scan_{reason}", 0) + int(count)
+        sizes.append(slam.state_size)
+        nis.append(report.nis if report else 0.0)
+        dof.append(report.nis_dof if report else 0)
+        if report is not None:
+            _add_report(totals, report)
         if point_stride:
             scan = frame.scan
             ok = np.isfinite(scan.ranges) & (scan.ranges < scan.max_range) & (scan.ranges > 0)
             sel = np.flatnonzero(ok)[::point_stride]
-            points.append(beam_points(slam.pose, frame.laser_offset, scan.angles[sel], scan.ranges[sel]).points)
+            points.append(beam_points(pose, frame.laser_offset, scan.angles[sel], scan.ranges[sel]).points)
         progress(i + 1, total)
     if slam is None:
         slam = SplineSLAM(config)
@@ -143,3 +163,15 @@ def _run(dataset, config, steps, progress, total, point_stride, slam) -> RunResu
         nis=np.array(nis), nis_dof=np.array(dof, dtype=int),
         points=np.vstack(points) if points else np.empty((0, 2)), skipped=dataset.skipped,
     )
+
+
+def _add_report(totals: dict[str, int], report) -> None:
+    """Add one step report's counters to the run totals."""
+    totals["filter_steps"] = totals.get("filter_steps", 0) + 1
+    for key in ("observed_splines", "matched_splines", "new_splines", "extended_splines",
+                "pruned_splines", "beams_used"):
+        totals[key] = totals.get(key, 0) + int(getattr(report, key))
+    for reason, count in report.beams_dropped.items():
+        totals[f"beams_dropped_{reason}"] = totals.get(f"beams_dropped_{reason}", 0) + count
+    for reason, count in report.scan_counts.items():
+        totals[f"scan_{reason}"] = totals.get(f"scan_{reason}", 0) + int(count)

@@ -30,3 +30,23 @@ def inverse(a: np.ndarray) -> np.ndarray:
 def between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a⁻¹ ∘ b: pose b seen from pose a (the motion from a to b in a's frame)."""
     return compose(inverse(a), b)
+
+
+def compose_jacobians(pose: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Jacobians (3×3 each) of ``compose(pose, delta)`` w.r.t. ``pose`` (F_x) and w.r.t.
+    ``delta`` (F_u), for one pose and one increment."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    F_x = np.array([[1.0, 0.0, -delta[0] * s - delta[1] * c],
+                    [0.0, 1.0, delta[0] * c - delta[1] * s],
+                    [0.0, 0.0, 1.0]])
+    F_u = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return F_x, F_u
+
+
+def compose_with_covariance(a: np.ndarray, cov_a: np.ndarray, b: np.ndarray, cov_b: np.ndarray
+                            ) -> tuple[np.ndarray, np.ndarray]:
+    """a ∘ b and its first-order covariance for independent a (3,) and b (3,) with
+    covariances (3, 3) each: ``F_x Σ_a F_xᵀ + F_u Σ_b F_uᵀ``."""
+    F_x, F_u = compose_jacobians(a, b)
+    cov = F_x @ cov_a @ F_x.T + F_u @ cov_b @ F_u.T
+    return compose(a, b), 0.5 * (cov + cov.T)

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from bsslam.slam.ekf import StackedGain, innovation_variances
-from bsslam.slam.motion import motion_jacobians, predict
+from bsslam.se2 import compose_jacobians
+from bsslam.slam.motion import predict
 from bsslam.slam.state import JointState
 
 
@@ -77,7 +78,7 @@ def test_predict_touches_only_pose_rows_and_columns():
     Q = np.diag([1e-4, 2e-4, 3e-4])
     pose0 = state.x[:3].copy()
     predict(state.x, state.P, delta, Q)
-    F_x, F_u = motion_jacobians(pose0, delta)
+    F_x, F_u = compose_jacobians(pose0, delta)
     F = np.eye(12)
     F[:3, :3] = F_x
     expected = F @ P0 @ F.T
@@ -110,13 +111,13 @@ def _no_return_scan():
 def test_step_with_given_odometry_covariance_propagates_it():
     """Without features the step is a pure prediction: P = F_u Q F_uᵀ from a known start."""
     from bsslam.slam import SplineSLAM
-    from bsslam.slam.motion import motion_jacobians
+    from bsslam.se2 import compose_jacobians
     slam = SplineSLAM(initial_pose=(1.0, 2.0, 0.7))
     delta = np.array([0.4, -0.1, 0.2])
     A = np.array([[0.02, 0.0, 0.0], [0.005, 0.01, 0.0], [0.001, 0.002, 0.03]])
     Q = A @ A.T
     slam.step(delta, _no_return_scan(), odometry_covariance=Q)
-    _, F_u = motion_jacobians(np.array([1.0, 2.0, 0.7]), delta)
+    _, F_u = compose_jacobians(np.array([1.0, 2.0, 0.7]), delta)
     np.testing.assert_allclose(slam.pose_covariance, F_u @ Q @ F_u.T, atol=1e-15)
 
 

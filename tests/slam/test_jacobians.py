@@ -5,7 +5,7 @@ import pytest
 
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
 from bsslam.se2 import compose
-from bsslam.slam.motion import motion_jacobians
+from bsslam.se2 import compose_jacobians
 from bsslam.slam.observation import predict_beams
 from bsslam.spline import BSplineCurve, clamped_knots, extend_curve, fit_curve
 
@@ -32,7 +32,7 @@ def wavy_wall(degree=3, n=9):
 def test_motion_jacobians(delta):
     pose = np.array([1.0, -2.0, 0.7])
     delta = np.array(delta)
-    F_x, F_u = motion_jacobians(pose, delta)
+    F_x, F_u = compose_jacobians(pose, delta)
     np.testing.assert_allclose(F_x, central_diff(lambda p: compose(p, delta), pose), atol=1e-8)
     np.testing.assert_allclose(F_u, central_diff(lambda u: compose(pose, u), delta), atol=1e-8)
 

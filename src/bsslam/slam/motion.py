@@ -8,18 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from bsslam.config import MotionNoiseConfig
-from bsslam.se2 import compose
-
-
-def motion_jacobians(pose: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Jacobians of :func:`compose` w.r.t. the pose (F_x, 3×3) and the increment (F_u, 3×3)."""
-    phi = pose[2]
-    c, s = np.cos(phi), np.sin(phi)
-    F_x = np.array([[1.0, 0.0, -delta[0] * s - delta[1] * c],
-                    [0.0, 1.0, delta[0] * c - delta[1] * s],
-                    [0.0, 0.0, 1.0]])
-    F_u = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return F_x, F_u
+from bsslam.se2 import compose, compose_jacobians
 
 
 def motion_noise(delta: np.ndarray, cfg: MotionNoiseConfig) -> np.ndarray:
@@ -38,7 +27,7 @@ def predict(x: np.ndarray, P: np.ndarray, delta: np.ndarray, Q: np.ndarray) -> N
     Only the pose block and the pose rows/columns change:
     ``P_rr ← F_x P_rr F_xᵀ + F_u Q F_uᵀ``, ``P_rm ← F_x P_rm`` — never the full F of (32).
     """
-    F_x, F_u = motion_jacobians(x[:3], delta)
+    F_x, F_u = compose_jacobians(x[:3], delta)
     x[:3] = compose(x[:3], delta)
     P_rm = F_x @ P[:3, 3:]
     P_rr = F_x @ P[:3, :3] @ F_x.T + F_u @ Q @ F_u.T
