@@ -24,10 +24,37 @@ def gate_threshold(probability: float) -> float:
     return float(chi2.ppf(probability, 1))
 
 
-def innovation_variances(P: np.ndarray, cols: np.ndarray, H_c: np.ndarray, range_variance: float) -> np.ndarray:
-    """(m,) diagonal of S = H P Hᵀ + R, for per-beam gating (m²)."""
-    HP = H_c @ P[np.ix_(cols, cols)]
+def innovation_variances(P: np.ndarray, cols: np.ndarray, H_c: np.ndarray, range_variance: float,
+                         P_cc: np.ndarray | None = None) -> np.ndarray:
+    """(m,) diagonal of S = H P Hᵀ + R, for per-beam gating (m²); ``P_cc`` is
+    ``P[cols][:, cols]`` when the caller has it already."""
+    HP = H_c @ (P[np.ix_(cols, cols)] if P_cc is None else P_cc)
     return np.einsum("ij,ij->i", HP, H_c) + range_variance
+
+
+class CovarianceColumns:
+    """``P[:, cols]`` of a covariance that does not change, gathered once for repeated
+    requests with the same ``cols`` (the iterations of one update mostly touch the same
+    columns; gathering n × c entries is the largest cost of a gain after the update itself).
+
+    Args:
+        P: (n, n) covariance; must not change while this object is used.
+    """
+
+    def __init__(self, P: np.ndarray):
+        self.P = P
+        self._cols: np.ndarray | None = None
+        self._P_c: np.ndarray | None = None
+
+    def get(self, cols: np.ndarray) -> np.ndarray:
+        """(n, c) ``P[:, cols]`` (do not modify it)."""
+        if self._cols is None or not np.array_equal(self._cols, cols):
+            self._cols, self._P_c = cols.copy(), self.P[:, cols]
+        return self._P_c
+
+    def block(self, cols: np.ndarray) -> np.ndarray:
+        """(c, c) ``P[cols][:, cols]``."""
+        return self.get(cols)[cols]
 
 
 class StackedGain:
@@ -39,11 +66,13 @@ class StackedGain:
         cols: (c,) state indices that ``H`` touches.
         H_c: (m, c) the Jacobian restricted to ``cols``.
         range_variance: R of one beam (m²).
+        P_c: optional (n, c) ``P[:, cols]`` when the caller has it already (read only).
     """
 
-    def __init__(self, P: np.ndarray, cols: np.ndarray, H_c: np.ndarray, range_variance: float):
+    def __init__(self, P: np.ndarray, cols: np.ndarray, H_c: np.ndarray, range_variance: float,
+                 P_c: np.ndarray | None = None):
         self.cols = cols
-        self.P_c = P[:, cols]                    # (n, c): the only columns of P read
+        self.P_c = P[:, cols] if P_c is None else P_c   # (n, c): the only columns of P read
         S = (H_c @ self.P_c[cols]) @ H_c.T
         S[np.diag_indices_from(S)] += range_variance
         self.S_diag = np.diag(S).copy()
