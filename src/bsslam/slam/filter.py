@@ -6,6 +6,7 @@ predict → segment and fit → associate → update → extend / add.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -16,7 +17,7 @@ from bsslam.errors import FilterError, FitError, InputError
 from bsslam.scan import LaserScan, ObservedSpline, extract_splines
 from bsslam.scan.refine import refine_for_map
 from bsslam.slam.association import Match, associate
-from bsslam.slam.ekf import CovarianceColumns, StackedGain, gate_threshold, innovation_variances
+from bsslam.slam.ekf import CovarianceColumns, StackedGain, Workspace, gate_threshold, innovation_variances
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
 from bsslam.slam.features import MapSpline, SplineFeature
 from bsslam.slam.map_curves import MapCurves
@@ -82,7 +83,7 @@ class _Linearization:
     hit_t: np.ndarray
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class _Beams:
     """The beams of one scan assigned to map splines, each (k,).
 
@@ -96,6 +97,11 @@ class _Beams:
     bearings: np.ndarray
     ranges: np.ndarray
     t0: np.ndarray
+
+    @functools.cached_property
+    def used_curves(self) -> np.ndarray:
+        """The distinct map splines of the beams."""
+        return np.unique(self.curve)
 
 
 class SplineSLAM:
@@ -116,6 +122,7 @@ class SplineSLAM:
         self.steps = 0
         self._next_id = 0
         self._map: MapCurves | None = None  # batch table of the map splines, see _map_curves
+        self._workspace = Workspace()        # scratch of the covariance update
         self._gate = gate_threshold(self.config.observation.gate_probability)
         self._loose_gate = gate_threshold(1.0 - (1.0 - self.config.observation.gate_probability) / 100.0)
 
@@ -203,8 +210,8 @@ class SplineSLAM:
         if mc is None or not observed:
             return [[] for _ in observed]
         lp = laser_pose(self.state.pose, offset)
-        maps = mc.batch(self.state.x)
-        b = maps.bboxes()
+        cp = mc.control_points(self.state.x)
+        b = mc.table.bboxes(cp)
         # distance from the robot to each box; only nearby features are candidates
         dx = np.maximum(np.maximum(b[:, 0] - lp[0], 0.0), lp[0] - b[:, 2])
         dy = np.maximum(np.maximum(b[:, 1] - lp[1], 0.0), lp[1] - b[:, 3])
@@ -223,6 +230,7 @@ class SplineSLAM:
         grow = cfg.uncertainty_sigmas * sigma_end
         delta = np.minimum(cfg.match_distance_m + grow, cfg.max_match_distance_m)
         gate = cfg.control_point_gate_factor * self.config.spline.knot_spacing_m + grow
+        maps = mc.table.with_control_points(cp, candidates)
         return associate(world, maps, mc.ids, candidates, gate, delta)
 
     def _reassociate(self, observed, matches, offset, report: StepReport) -> None:
@@ -242,7 +250,7 @@ class SplineSLAM:
         """The beams of the matched intervals, each with its map spline and Newton start;
         a beam inside several matched intervals goes to the first (by ``u_ini``)."""
         stride = self.config.observation.beam_stride
-        mc = self._map_curves()
+        mc = self._map   # validated by the _associate that produced ``matches``
         parts = []
         for obs, obs_matches in zip(observed, matches):  # a handful of splines and matches per scan
             taken = np.zeros(obs.params.shape[0], dtype=bool)
@@ -269,8 +277,9 @@ class SplineSLAM:
         counted when ``report`` is given). Returns None when no beam is left.
         """
         max_tan = math.tan(self.config.observation.max_incidence_rad)
-        mc = self._map_curves()
-        pred = predict_beams_batch(mc.batch(x), beams.curve, x[:3], offset, beams.bearings, t0=beams.t0)
+        mc = self._map   # validated by _associate this step
+        maps = mc.batch(x, beams.used_curves)
+        pred = predict_beams_batch(maps, beams.curve, x[:3], offset, beams.bearings, t0=beams.t0)
         ok = pred.hit & np.isfinite(pred.z)
         grazing = ok & (np.abs(pred.r) > max_tan)
         if report is not None:
@@ -315,7 +324,7 @@ class SplineSLAM:
         report.matched_splines += sum(1 for m in matches if m)
         if beams is None:
             return
-        mc = self._map_curves()
+        mc = self._map
         R = self._range_variance
         x0 = self.state.x.copy()
         P = self.state.P
@@ -359,9 +368,9 @@ class SplineSLAM:
             if step[0] < 1e-4 and step[1] < 1e-4 and step[2] < 1e-5:  # 0.1 mm, 0.01 mrad: far below σ
                 break
         self.state.x[:] = x_i
-        gain.update_covariance(self.state)
+        gain.update_covariance(self.state, self._workspace)
         self.state.x[2] = wrap_angle(self.state.x[2])
-        for c in np.unique(beams.curve):
+        for c in beams.used_curves:
             mc.features[c].observations += 1
         report.innovations = np.concatenate([report.innovations, nu])
         report.innovation_variances = np.concatenate([report.innovation_variances, gain.S_diag])

@@ -29,7 +29,8 @@ class MapCurves:
 
     def __init__(self, features: list[SplineFeature]):
         self.features = list(features)
-        self._signature = [_signature(f) for f in self.features]
+        self._signature = _signature(self.features)
+        self._alive = [(f.knots, f.idx_x, f.idx_y, f.fixed_control_points) for f in self.features]
         self.ids = np.array([f.id for f in self.features], dtype=np.intp)
         self.index = {f.id: c for c, f in enumerate(self.features)}
         self.table = curve_table([f.knots for f in self.features], [f.degree for f in self.features])
@@ -50,10 +51,7 @@ class MapCurves:
         """Whether this table is still that of ``features`` (same objects, same knot and
         index arrays: the filter replaces those arrays, never edits them, when it changes a
         spline)."""
-        if len(features) != len(self._signature):
-            return False
-        return all(old[0] is f and all(a is b for a, b in zip(old[1:], _signature(f)[1:]))
-                   for old, f in zip(self._signature, features))
+        return _signature(features) == self._signature
 
     def control_points(self, x: np.ndarray) -> np.ndarray:
         """(N, 2) stacked control points at the state mean ``x`` (m)."""
@@ -62,11 +60,13 @@ class MapCurves:
             cp = np.where(self._in_state[:, None], cp, self._fixed)
         return cp
 
-    def batch(self, x: np.ndarray) -> CurveBatch:
-        """The map splines at the state mean ``x``."""
-        return self.table.with_control_points(self.control_points(x))
+    def batch(self, x: np.ndarray, curves: np.ndarray | None = None) -> CurveBatch:
+        """The map splines at the state mean ``x``; only ``curves`` (indices) can be
+        queried when given (see :meth:`CurveTable.with_control_points`)."""
+        return self.table.with_control_points(self.control_points(x), curves)
 
 
-def _signature(f: SplineFeature) -> tuple:
-    # Holding the arrays keeps them alive, so identity comparisons cannot be fooled by reuse.
-    return (f, f.knots, f.idx_x, f.idx_y, f.fixed_control_points)
+def _signature(features: list[SplineFeature]) -> list[tuple[int, ...]]:
+    # Identities of the feature objects and of their arrays; the table holds references to
+    # all of them (``features``, ``_alive``), so no id can be reused while it is compared.
+    return [(id(f), id(f.knots), id(f.idx_x), id(f.idx_y), id(f.fixed_control_points)) for f in features]

@@ -85,13 +85,34 @@ class CurveTable:
     def n_curves(self) -> int:
         return self.lo.shape[0]
 
-    def with_control_points(self, control_points: np.ndarray) -> CurveBatch:
-        """The curves with stacked control points (N, 2) (m), rows ordered as ``cp_start``."""
+    def with_control_points(self, control_points: np.ndarray, curves: np.ndarray | None = None) -> CurveBatch:
+        """The curves with stacked control points (N, 2) (m), rows ordered as ``cp_start``.
+
+        With ``curves`` (indices), only those curves get polynomial coefficients (the
+        others' stay NaN and must not be queried): the filter queries the few splines near
+        the robot of a map of hundreds, and the coefficients are recomputed whenever the
+        state moves.
+        """
         cp = np.asarray(control_points, dtype=float)
         if cp.shape != (self.cp_start[-1], 2):
             raise SplineError(f"control points must have shape ({self.cp_start[-1]}, 2), got {cp.shape}")
-        coeffs = np.einsum("skr,srd->skd", self.power_basis, cp[self.window])
+        if curves is None:
+            return CurveBatch(self, cp, _piece_coeffs(self.power_basis, cp[self.window]))
+        curves = np.asarray(curves, dtype=np.intp)
+        first = self.piece_start[curves]
+        count = self.piece_start[curves + 1] - first
+        owner = np.repeat(np.arange(curves.shape[0]), count)
+        piece = np.arange(owner.shape[0]) - np.repeat(np.cumsum(count) - count, count) + first[owner]
+        coeffs = np.full((self.piece_lo.shape[0], self.p + 1, 2), np.nan)
+        coeffs[piece] = _piece_coeffs(self.power_basis[piece], cp[self.window[piece]])
         return CurveBatch(self, cp, coeffs)
+
+    def bboxes(self, control_points: np.ndarray) -> np.ndarray:
+        """(C, 4) ``xmin, ymin, xmax, ymax`` of each control polygon (m), from stacked
+        control points (N, 2); the box contains the curve."""
+        starts = self.cp_start[:-1]
+        return np.hstack([np.minimum.reduceat(control_points, starts, axis=0),
+                          np.maximum.reduceat(control_points, starts, axis=0)])
 
     def locate(self, curve: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Global piece (m,), local parameter u = t − piece_lo (m,) and the clamped t (m,)
@@ -132,9 +153,7 @@ class CurveBatch:
 
     def bboxes(self) -> np.ndarray:
         """(C, 4) ``xmin, ymin, xmax, ymax`` of each control polygon (m); contains the curve."""
-        starts = self.table.cp_start[:-1]
-        return np.hstack([np.minimum.reduceat(self.control_points, starts, axis=0),
-                          np.maximum.reduceat(self.control_points, starts, axis=0)])
+        return self.table.bboxes(self.control_points)
 
 
 def curve_table(knots: list[np.ndarray], degrees: list[int] | np.ndarray) -> CurveTable:
@@ -197,6 +216,16 @@ def curve_table(knots: list[np.ndarray], degrees: list[int] | np.ndarray) -> Cur
     return CurveTable(degree=degrees, p=p, cp_start=cp_start, piece_start=piece_start, lo=lo, hi=hi,
                       piece_lo=piece_lo, width=width, piece_curve=owner, window=window, real=real,
                       power_basis=power_basis, keys=keys, break_start=break_start)
+
+
+def _piece_coeffs(power_basis: np.ndarray, window_points: np.ndarray) -> np.ndarray:
+    """(S, p+1, 2) Taylor coefficients Σ_r power_basis[s, k, r] · window_points[s, r] of
+    pieces from their (S, p+1, p+1) power-basis matrices and (S, p+1, 2) control points.
+    (Written out: numpy's einsum and batched matmul are slow on many 4 × 4 products.)"""
+    out = power_basis[:, :, 0, None] * window_points[:, None, 0, :]
+    for r in range(1, power_basis.shape[2]):
+        out += power_basis[:, :, r, None] * window_points[:, None, r, :]
+    return out
 
 
 # -- ray intersection ------------------------------------------------------------------------
