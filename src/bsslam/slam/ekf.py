@@ -33,9 +33,10 @@ def innovation_variances(P: np.ndarray, cols: np.ndarray, H_c: np.ndarray, range
 
 
 class CovarianceColumns:
-    """``P[:, cols]`` of a covariance that does not change, gathered once for repeated
-    requests with the same ``cols`` (the iterations of one update mostly touch the same
-    columns; gathering n × c entries is the largest cost of a gain after the update itself).
+    """``P[:, cols]`` of a covariance that does not change, for the repeated requests of one
+    iterated update: gathering n × c scattered entries is the largest cost of a gain after
+    the covariance update itself. The columns gathered are kept; a request for a subset of
+    them is served from that (n, C) block, which is far faster to index than P.
 
     Args:
         P: (n, n) covariance; must not change while this object is used.
@@ -43,14 +44,26 @@ class CovarianceColumns:
 
     def __init__(self, P: np.ndarray):
         self.P = P
-        self._cols: np.ndarray | None = None
-        self._P_c: np.ndarray | None = None
+        self._cols = np.empty(0, dtype=np.intp)     # sorted
+        self._P_c = np.empty((P.shape[0], 0))
+        self._last: tuple[np.ndarray, np.ndarray] | None = None
 
     def get(self, cols: np.ndarray) -> np.ndarray:
         """(n, c) ``P[:, cols]`` (do not modify it)."""
-        if self._cols is None or not np.array_equal(self._cols, cols):
-            self._cols, self._P_c = cols.copy(), self.P[:, cols]
-        return self._P_c
+        if self._last is not None and np.array_equal(self._last[0], cols):
+            return self._last[1]
+        pos = np.searchsorted(self._cols, cols)
+        pos_ok = np.minimum(pos, max(self._cols.shape[0] - 1, 0))
+        if self._cols.shape[0] and np.array_equal(self._cols[pos_ok], cols):
+            out = self._P_c[:, pos]
+        else:
+            out = self.P[:, cols]
+            self._cols, first = np.unique(np.concatenate([self._cols, cols]), return_index=True)
+            # the union, taken from what is gathered already where possible
+            both = np.concatenate([self._P_c, out], axis=1)
+            self._P_c = np.ascontiguousarray(both[:, first])
+        self._last = (cols.copy(), out)
+        return out
 
     def block(self, cols: np.ndarray) -> np.ndarray:
         """(c, c) ``P[cols][:, cols]``."""

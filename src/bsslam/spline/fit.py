@@ -112,8 +112,19 @@ def check_params(params: object, m: int) -> np.ndarray:
 _SCREEN_MARGIN = 1e-6
 
 
+# Span counts screened together: the first well-posed count usually passes, so screening
+# all of them (up to ~50) at once would mostly be wasted.
+_SCREEN_CHUNK = 6
+
+
 def candidate_span_counts(t: np.ndarray, distinct: np.ndarray, multiplicity: np.ndarray, degree: int,
                           most: int, max_noise_gain: float | None = None) -> np.ndarray:
+    """All of :func:`iter_span_counts`, as a (k,) int array."""
+    return np.array(list(iter_span_counts(t, distinct, multiplicity, degree, most, max_noise_gain)), dtype=int)
+
+
+def iter_span_counts(t: np.ndarray, distinct: np.ndarray, multiplicity: np.ndarray, degree: int,
+                     most: int, max_noise_gain: float | None = None):
     """The span counts ``most … 1`` (descending) that :func:`fit_curve` must still try.
 
     For every count at once (one basis evaluation for all their knot vectors): the clamped
@@ -131,13 +142,14 @@ def candidate_span_counts(t: np.ndarray, distinct: np.ndarray, multiplicity: np.
         most: the largest span count (≥ 1 for any candidate).
         max_noise_gain: the limit of :func:`least_squares_operator`, or None.
 
-    Returns:
-        (k,) int span counts, descending.
+    Yields:
+        int span counts, descending; the noise screen runs on a few counts at a time, as
+        the caller asks for more.
     """
     p = degree
     spans = np.arange(most, 0, -1)
     if spans.size == 0:
-        return spans
+        return
     k = spans.shape[0]
     n = spans + p                                        # control points per candidate
     start, length, end = float(t[0]), float(t[-1] - t[0]), float(t[-1])
@@ -172,9 +184,24 @@ def candidate_span_counts(t: np.ndarray, distinct: np.ndarray, multiplicity: np.
     matched = i + np.maximum.accumulate(first - i + cp_owner * big) - cp_owner * big
     ok = np.bincount(cp_owner, weights=(matched > last) | (last < 0), minlength=k) == 0
 
-    if max_noise_gain is not None and ok.any():
-        ok &= ~_surely_too_noisy(beta, cp, multiplicity[row], cp_start, cp_owner, ok, p, max_noise_gain)
-    return spans[ok]
+    well_posed = np.flatnonzero(ok)
+    if max_noise_gain is None:
+        yield from (int(c) for c in spans[well_posed])
+        return
+    weight = multiplicity[row]
+    for at in range(0, well_posed.shape[0], _SCREEN_CHUNK):
+        chunk = well_posed[at: at + _SCREEN_CHUNK]
+        # the chunk's rows, with its control points renumbered from 0
+        rank = np.full(k, -1)
+        rank[chunk] = np.arange(chunk.shape[0])
+        rows_in = rank[q_owner] >= 0
+        n_c = n[chunk]
+        start_c = np.concatenate([[0], np.cumsum(n_c)])
+        owner_rows = q_owner[rows_in]
+        cp_c = cp[rows_in] - cp_start[owner_rows][:, None] + start_c[rank[owner_rows]][:, None]
+        noisy = _surely_too_noisy(beta[rows_in], cp_c, weight[rows_in], start_c, _groups(n_c)[0], p,
+                                  max_noise_gain)
+        yield from (int(c) for c in spans[chunk[~noisy]])
 
 
 def _groups(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -183,12 +210,19 @@ def _groups(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return owner, np.arange(owner.shape[0]) - np.repeat(np.cumsum(counts) - counts, counts)
 
 
-def _surely_too_noisy(beta, cp, weight, cp_start, cp_owner, well_posed, p, max_noise_gain) -> np.ndarray:
-    """(k,) bool: some control point's local lower bound of its squared noise gain exceeds
-    the limit (see :func:`candidate_span_counts`). Only the ``well_posed`` (k,) candidates
-    (Schoenberg–Whitney holds, so A is positive definite) are examined."""
+def _surely_too_noisy(beta, cp, weight, cp_start, cp_owner, p, max_noise_gain) -> np.ndarray:
+    """(k,) bool: for k candidates satisfying Schoenberg–Whitney (so A is positive
+    definite), whether some control point's local lower bound of its squared noise gain
+    exceeds the limit (see :func:`iter_span_counts`).
+
+    Args:
+        beta: (r, p+1) basis values of the data rows; cp: (r, p+1) their control points,
+            numbered across candidates; weight: (r,) multiplicity of each row;
+        cp_start: (k+1,) first control point of each candidate; cp_owner: (N,) candidate
+            of each control point; p: degree; max_noise_gain: the limit.
+    """
     N = cp_start[-1]
-    k = well_posed.shape[0]
+    k = cp_start.shape[0] - 1
     # band of A = BᵀB: band[c, e] = A[c, c + e], from each datum's degree + 1 basis values
     band = np.zeros(N * (p + 1))
     for r in range(p + 1):
@@ -210,7 +244,6 @@ def _surely_too_noisy(beta, cp, weight, cp_start, cp_owner, well_posed, p, max_n
         c + np.arange(w) >= cp_start[cp_owner + 1][:, None, None])        # (N, 1, w)
     diag = np.arange(w)
     M[:, diag, diag] = np.where(outside[:, 0, :], 1.0, M[:, diag, diag])
-    M[~well_posed[cp_owner]] = np.eye(w)   # singular blocks of the other candidates: not examined
     # Nearly singular blocks (barely determined control points, the very cases to catch)
     # must not stop the solve: M + εI is positive definite and (M + εI)⁻¹ ⪯ M⁻¹, so the
     # bound stays a lower bound.
@@ -222,7 +255,7 @@ def _surely_too_noisy(beta, cp, weight, cp_start, cp_owner, well_posed, p, max_n
             gain2 = np.linalg.solve(M, rhs)[:, p, 0]    # (M⁻¹)_ii ≤ (A⁻¹)_ii = ‖Φ_i‖²
     except np.linalg.LinAlgError:  # pragma: no cover - M + εI is positive definite
         return np.zeros(k, dtype=bool)
-    noisy = np.isfinite(gain2) & (gain2 > max_noise_gain ** 2 * (1.0 + _SCREEN_MARGIN)) & well_posed[cp_owner]
+    noisy = np.isfinite(gain2) & (gain2 > max_noise_gain ** 2 * (1.0 + _SCREEN_MARGIN))
     return np.bincount(cp_owner, weights=noisy, minlength=k) > 0
 
 
@@ -278,8 +311,8 @@ def fit_curve(points: object, degree: int, spacing_m: float, params: object = No
     # The most spans that give a well-posed fit win. Schoenberg–Whitney and a lower bound of
     # the noise gain are decided for all span counts at once; only the survivors are
     # factorised, from the most spans down, until one passes.
-    for spans in candidate_span_counts(t, distinct, multiplicity, degree, most, max_noise_gain):
-        knots = clamped_knots_with_spans(length, int(spans), degree, start=float(t[0]))
+    for spans in iter_span_counts(t, distinct, multiplicity, degree, most, max_noise_gain):
+        knots = clamped_knots_with_spans(length, spans, degree, start=float(t[0]))
         knots[-degree - 1 :] = t[-1]  # exactly the last parameter, not start + length
         phi = least_squares_operator(collocation_matrix(knots, degree, t), max_noise_gain)
         if phi is None:
