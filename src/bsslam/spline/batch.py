@@ -303,23 +303,29 @@ def _ray_newton(batch: CurveBatch, rays: _Rays, t: np.ndarray, max_range: float)
     lo, hi = table.lo[rays.curve], table.hi[rays.curve]
     t = np.clip(t, lo, hi)
     active = np.arange(t.shape[0])
+    sub = rays
+    sub_lo, sub_hi = lo, hi
     for _ in range(_RAY_MAX_NEWTON):
         # only rays still moving are evaluated: most converge in three or four steps
-        c, s_ = rays.cos[active], rays.sin[active]
-        piece, u, _ = table.locate(rays.curve[active], t[active])
-        s, ds = horner_with_derivatives(batch.coeffs[piece], u, 1)
-        yt = c * (s[:, 1] - rays.oy[active]) - s_ * (s[:, 0] - rays.ox[active])
-        dyt = c * ds[:, 1] - s_ * ds[:, 0]
+        t_a = t[active]
+        piece, u, _ = table.locate(sub.curve, t_a)
+        s, ds = _value_and_slope(batch.coeffs[piece], u)
+        yt = sub.cos * (s[:, 1] - sub.oy) - sub.sin * (s[:, 0] - sub.ox)
+        dyt = sub.cos * ds[:, 1] - sub.sin * ds[:, 0]
         with np.errstate(divide="ignore", invalid="ignore"):
-            t_new = np.clip(t[active] - yt / dyt, lo[active], hi[active])
+            t_new = np.clip(t_a - yt / dyt, sub_lo, sub_hi)
         finite = np.isfinite(t_new)
-        moving = finite & (np.abs(t_new - t[active]) > _STEP_TOLERANCE * (1.0 + np.abs(t_new)))
-        t[active] = np.where(finite, t_new, t[active])
-        active = active[moving]
-        if active.size == 0:
+        moving = finite & (np.abs(t_new - t_a) > _STEP_TOLERANCE * (1.0 + np.abs(t_new)))
+        t[active] = np.where(finite, t_new, t_a)
+        if not moving.any():
             break
+        if not moving.all():
+            keep = np.flatnonzero(moving)
+            active = active[keep]
+            sub = sub.take(keep)
+            sub_lo, sub_hi = sub_lo[keep], sub_hi[keep]
     piece, u, _ = table.locate(rays.curve, t)
-    s, ds = horner_with_derivatives(batch.coeffs[piece], u, 1)
+    s, ds = _value_and_slope(batch.coeffs[piece], u)
     dx, dy = s[:, 0] - rays.ox, s[:, 1] - rays.oy
     xt = rays.cos * dx + rays.sin * dy
     yt = rays.cos * dy - rays.sin * dx
@@ -327,6 +333,32 @@ def _ray_newton(batch: CurveBatch, rays: _Rays, t: np.ndarray, max_range: float)
     dyt = rays.cos * ds[:, 1] - rays.sin * ds[:, 0]
     ok = (np.abs(yt) <= _ROOT_TOLERANCE_M) & (xt > 0) & (xt <= max_range)
     return ok, (t, xt, dxt, dyt)
+
+
+def _value_slope_curvature(coeffs: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points, first and second derivatives (m, 2) each of pieces (m, p+1, 2) at local u
+    (m,): :func:`_value_and_slope` with the second derivative (inner loop of closest points)."""
+    uu = u[:, None]
+    v, d, dd = coeffs[:, -1], None, None
+    for i in range(coeffs.shape[1] - 2, -1, -1):
+        if d is not None:
+            dd = d if dd is None else dd * uu + d
+        d = v if d is None else d * uu + v
+        v = v * uu + coeffs[:, i]
+    zero = np.zeros_like(v)
+    return v, (zero if d is None else d), (zero if dd is None else 2.0 * dd)
+
+
+def _value_and_slope(coeffs: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points (m, 2) and first derivatives (m, 2) of pieces with coefficients (m, p+1, 2)
+    at local parameters u (m,): Horner on both at once (as horner_with_derivatives with
+    nder = 1, with fewer temporaries — this is the inner loop of the ray search)."""
+    uu = u[:, None]
+    v, d = coeffs[:, -1], None
+    for i in range(coeffs.shape[1] - 2, -1, -1):
+        d = v if d is None else d * uu + v
+        v = v * uu + coeffs[:, i]
+    return v, (np.zeros_like(v) if d is None else d)
 
 
 def _ray_global_search(batch: CurveBatch, rays: _Rays, max_range: float, samples_per_span: int):
@@ -485,7 +517,7 @@ def _closest_newton(batch: CurveBatch, curve: np.ndarray, q: np.ndarray, t: np.n
     d2_best = np.full(t.shape, np.inf)
     for _ in range(_CLOSEST_MAX_NEWTON):
         piece, u, _ = table.locate(curve, t)
-        s, ds, dds = horner_with_derivatives(batch.coeffs[piece], u, 2)
+        s, ds, dds = _value_slope_curvature(batch.coeffs[piece], u)
         diff = s - q
         d2 = np.einsum("ij,ij->i", diff, diff)
         better = d2 < d2_best
