@@ -1,7 +1,17 @@
-"""Time per scan against state size, from a simulated run that grows the map past 1000
-state dimensions, single-threaded; then a profile of the per-scan work at the largest size.
+"""Time per scan against state size, single-threaded, from a simulated run that grows the map
+past 1000 state dimensions; then where the time of a scan goes at about 1000 dimensions.
 
-    python benchmarks/bench_filter.py [--steps N]
+    python benchmarks/bench_filter.py [--world NAME] [--steps N] [--profile]
+
+The default world is a 30 × 20 m corridor loop (3 m wide, rounded corners) driven twice:
+about 175 m of walls, so with knot spacing ρ = 0.2 m and no extension (the map grows by new
+splines) the state passes 1000 dimensions during the first lap. Built-in worlds can be
+chosen with ``--world`` (they are smaller; ``mixed`` stops near 800).
+
+Two runs of the same seeded data: the first times whole scans (medians per state-size bin);
+the second times the filter's stages with light wrappers around its methods and reports
+them for the scans whose state size is within ``--around`` ± 10 %. ``--profile`` adds a
+cProfile listing of those scans.
 """
 
 import os
@@ -12,63 +22,170 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import cProfile  # noqa: E402
+import functools  # noqa: E402
 import pstats  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+import bsslam.slam.ekf as ekf_module  # noqa: E402
+import bsslam.slam.filter as filter_module  # noqa: E402
 from bsslam.config import MappingConfig, SLAMConfig, SplineConfig  # noqa: E402
 from bsslam.experiments.consistency import simulation_config  # noqa: E402
-from bsslam.sim import SimConfig, get_world, simulate  # noqa: E402
-from bsslam.slam import SplineSLAM  # noqa: E402
 from bsslam.se2 import between as relative  # noqa: E402
+from bsslam.sim import SimConfig, get_world, simulate  # noqa: E402
+from bsslam.sim.geometry import WallSet, rounded_rectangle_walls  # noqa: E402
+from bsslam.sim.paths import rounded_rectangle_loop  # noqa: E402
+from bsslam.sim.worlds import World  # noqa: E402
+from bsslam.slam import SplineSLAM  # noqa: E402
+
+BINS = [0, 250, 500, 750, 1000, 1250, 1500, 2000, 3000, 10**9]
+# Stages in the order of a scan; each is the total time of the listed callables, which never
+# call one another, so the stages do not overlap. "other" is the rest of step() (beam
+# grouping, row selection, bookkeeping).
+STAGES = {
+    "predict": [(SplineSLAM, "_predict")],
+    "segment+fit": [(SplineSLAM, "_observe")],
+    "associate": [(SplineSLAM, "_associate")],
+    "linearise": [(SplineSLAM, "_linearize")],
+    "S/gain": [(ekf_module.StackedGain, "__init__"), (ekf_module.StackedGain, "correction"),
+               (ekf_module.StackedGain, "posterior_variances"), (filter_module, "innovation_variances"),
+               (getattr(ekf_module, "CovarianceColumns", None), "get")],
+    "covariance update": [(ekf_module.StackedGain, "update_covariance")],
+    "enlarge": [(SplineSLAM, "_enlarge")],
+}
+
+
+def large_corridor() -> World:
+    """A 3 m wide corridor around a 24 × 14 m block (outer walls 30 × 20 m), corners rounded
+    concentrically (3.5 m outside, 0.5 m inside), the robot on the centre line."""
+    outer = rounded_rectangle_walls(0.0, 0.0, 30.0, 20.0, radii=(3.5, 3.5, 3.5, 3.5))
+    inner = rounded_rectangle_walls(3.0, 3.0, 27.0, 17.0, radii=(0.5, 0.5, 0.5, 0.5))
+    return World(name="large-corridor", description="3 m wide corridor loop, 30 × 20 m",
+                 walls=WallSet(outer + inner),
+                 path=rounded_rectangle_loop(1.5, 1.5, 28.5, 18.5, radii=(2.0, 2.0, 2.0, 2.0)))
+
+
+def run(frames, config, stage_times=None, profile_window=None):
+    """Run the filter over ``frames``; (state sizes (N,), ms per scan (N,)). With
+    ``stage_times`` (dict stage -> list), append each scan's ms per stage."""
+    slam = SplineSLAM(config, initial_pose=frames[0].odometry)
+    clock = _StageClock() if stage_times is not None else None
+    prof = cProfile.Profile() if profile_window is not None else None
+    sizes, times = [], []
+    prev = frames[0].odometry
+    try:
+        if clock:
+            clock.install()
+        for fr in frames:
+            delta = relative(prev, fr.odometry)
+            prev = fr.odometry
+            profiling = prof is not None and profile_window[0] <= slam.state_size < profile_window[1]
+            if clock:
+                clock.reset()
+            if profiling:
+                prof.enable()
+            t0 = time.perf_counter()
+            slam.step(delta, fr.scan)
+            elapsed = time.perf_counter() - t0
+            if profiling:
+                prof.disable()
+            times.append(elapsed * 1000)
+            sizes.append(slam.state_size)
+            if clock:
+                for name, t in clock.totals(elapsed).items():
+                    stage_times.setdefault(name, []).append(t * 1000)
+    finally:
+        if clock:
+            clock.uninstall()
+    return np.array(sizes), np.array(times), prof
+
+
+class _StageClock:
+    """Wraps the callables of STAGES with timers (~1 µs each call)."""
+
+    def __init__(self):
+        self.acc = dict.fromkeys(STAGES, 0.0)
+        self._saved = []
+
+    def install(self):
+        for stage, targets in STAGES.items():
+            for owner, name in targets:
+                if owner is None:
+                    continue
+                original = getattr(owner, name)
+                setattr(owner, name, self._wrap(original, stage))
+                self._saved.append((owner, name, original))
+
+    def uninstall(self):
+        for owner, name, original in reversed(self._saved):
+            setattr(owner, name, original)
+        self._saved.clear()
+
+    def _wrap(self, fn, stage):
+        acc = self.acc
+
+        @functools.wraps(fn)
+        def timed(*args, **kwargs):
+            t0 = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                acc[stage] += time.perf_counter() - t0
+        return timed
+
+    def reset(self):
+        for k in self.acc:
+            self.acc[k] = 0.0
+
+    def totals(self, step_time):
+        out = dict(self.acc)
+        out["other"] = step_time - sum(self.acc.values())
+        out["total"] = step_time
+        return out
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--steps", type=int, default=None)
-    ap.add_argument("--world", default="mixed")
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--world", default="large-corridor", help="large-corridor (default) or a built-in world")
+    ap.add_argument("--steps", type=int, default=None, help="scans (default: the whole double loop)")
+    ap.add_argument("--around", type=float, default=1000.0, help="state size of the stage table")
+    ap.add_argument("--profile", action="store_true", help="also cProfile the scans of the stage table")
     args = ap.parse_args()
     sim = SimConfig()
     # no extension: the map grows by new splines, which is what drives the state past 1000
     base = SLAMConfig(spline=SplineConfig(degree=3, knot_spacing_m=0.2, min_knot_spacing_m=0.2),
                       mapping=MappingConfig(extend=False))
     config = simulation_config(base, sim)
-    data = simulate(get_world(args.world), sim, seed=0, steps=args.steps)
-    frames = list(data)
-    slam = SplineSLAM(config, initial_pose=frames[0].odometry)
-    sizes, times = [], []
-    prev = frames[0].odometry
-    for fr in frames:
-        delta = relative(prev, fr.odometry)
-        prev = fr.odometry
-        t0 = time.perf_counter()
-        slam.step(delta, fr.scan)
-        times.append(time.perf_counter() - t0)
-        sizes.append(slam.state_size)
-    sizes, times = np.array(sizes), np.array(times) * 1000
-    print(f"world {args.world}: {len(frames)} scans, final state size {sizes[-1]}, {len(slam.features)} splines")
+    world = large_corridor() if args.world == "large-corridor" else get_world(args.world)
+    frames = list(simulate(world, sim, seed=0, steps=args.steps))
+
+    sizes, times, _ = run(frames, config)
+    print(f"world {world.name}: {len(frames)} scans, final state size {sizes[-1]}")
     print(f"{'state size':>14} {'scans':>6} {'median ms/scan':>15} {'p90 ms/scan':>12}")
-    edges = [0, 250, 500, 750, 1000, 1250, 1500, 2000, 3000, 10**9]
-    for lo, hi in zip(edges[:-1], edges[1:]):
+    for lo, hi in zip(BINS[:-1], BINS[1:]):
         sel = (sizes >= lo) & (sizes < hi)
         if sel.sum() >= 3:
-            print(f"{lo:>6}–{min(hi, sizes.max()):<7} {sel.sum():>6} {np.median(times[sel]):>15.2f} {np.percentile(times[sel], 90):>12.2f}")
-    # profile the last 40 scans again from a copy of the state at that point
-    k = max(0, len(frames) - 40)
-    slam2 = SplineSLAM(config, initial_pose=frames[0].odometry)
-    prev = frames[0].odometry
-    for fr in frames[:k]:
-        slam2.step(relative(prev, fr.odometry), fr.scan)
-        prev = fr.odometry
-    prof = cProfile.Profile()
-    prof.enable()
-    for fr in frames[k:]:
-        slam2.step(relative(prev, fr.odometry), fr.scan)
-        prev = fr.odometry
-    prof.disable()
-    print(f"\nprofile of the last {len(frames) - k} scans (state size {slam2.state_size}):")
-    pstats.Stats(prof).sort_stats("cumulative").print_stats(20)
+            print(f"{lo:>6}–{min(hi, sizes.max()):<7} {sel.sum():>6} {np.median(times[sel]):>15.2f} "
+                  f"{np.percentile(times[sel], 90):>12.2f}")
+
+    window = (0.9 * args.around, 1.1 * args.around)
+    stage_times: dict[str, list[float]] = {}
+    sizes2, _, prof = run(frames, config, stage_times, window if args.profile else None)
+    sel = (sizes2 >= window[0]) & (sizes2 < window[1])
+    if not sel.any():
+        print(f"\nno scan with state size in [{window[0]:.0f}, {window[1]:.0f})")
+        return
+    total = np.array(stage_times["total"])[sel]
+    print(f"\nstages of the {sel.sum()} scans with state size in [{window[0]:.0f}, {window[1]:.0f}) "
+          f"(ms per scan; the medians need not add up):")
+    print(f"{'stage':>18} {'median':>8} {'mean':>8} {'share':>7}")
+    for name in [*STAGES, "other", "total"]:
+        t = np.array(stage_times[name])[sel]
+        print(f"{name:>18} {np.median(t):>8.2f} {t.mean():>8.2f} {100 * t.mean() / total.mean():>6.1f}%")
+    if prof is not None:
+        print("\ncProfile of those scans:")
+        pstats.Stats(prof).sort_stats("cumulative").print_stats(25)
 
 
 if __name__ == "__main__":

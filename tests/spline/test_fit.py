@@ -124,3 +124,33 @@ def test_noise_gain_bound_rejects_barely_supported_basis_functions():
     bounded = fit_curve(pts, 3, 0.25, params=t, max_noise_gain=10.0)
     assert bounded.curve.n_control < loose.curve.n_control
     assert np.sqrt((bounded.phi ** 2).sum(axis=1)).max() <= 10.0
+
+
+def _clustered_params(rng, m):
+    """(m,) sorted chord-length-like parameters with gaps and repeats (m)."""
+    steps = rng.exponential(0.05, m - 1) * np.where(rng.random(m - 1) < 0.1, 20.0, 1.0)
+    steps[rng.random(m - 1) < 0.05] = 0.0   # repeated parameters
+    return np.concatenate([[0.0], np.cumsum(steps)]) + rng.uniform(-1, 1)
+
+
+@SETTINGS
+@given(degree=st.integers(1, 4), m=st.integers(6, 120), spacing=st.floats(0.05, 1.0),
+       gain=st.sampled_from([None, 1.5, 3.0, 10.0]), seed=st.integers(0, 2**32 - 1))
+def test_candidate_span_counts_keep_every_count_the_one_by_one_search_accepts(degree, m, spacing, gain, seed):
+    from bsslam.spline.fit import candidate_span_counts, least_squares_operator, satisfies_schoenberg_whitney
+    from bsslam.spline.knots import clamped_knots_with_spans, span_count
+
+    t = _clustered_params(np.random.default_rng(seed), m)
+    distinct, mult = np.unique(t, return_counts=True)
+    most = min(span_count(float(t[-1] - t[0]), spacing), distinct.shape[0] - degree)
+    got = set(candidate_span_counts(t, distinct, mult, degree, most, gain).tolist())
+    for spans in range(most, 0, -1):
+        knots = clamped_knots_with_spans(float(t[-1] - t[0]), spans, degree, start=float(t[0]))
+        knots[-degree - 1:] = t[-1]
+        sw = satisfies_schoenberg_whitney(knots, degree, distinct)
+        if gain is None:
+            assert (spans in got) == sw          # Schoenberg–Whitney decided identically
+        elif sw and least_squares_operator(collocation_matrix(knots, degree, t), gain) is not None:
+            assert spans in got                  # the screen never drops a count that passes
+        elif not sw:
+            assert spans not in got

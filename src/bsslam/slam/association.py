@@ -4,6 +4,11 @@ Both curves are in the world frame (the observed one moved there with the curren
 estimate). A match gives corresponding parameter intervals ``[u_ini, u_fin]`` on the
 observed spline and ``[t_ini, t_fin]`` on the map spline; whatever lies beyond a map
 spline's end is a candidate for extending it.
+
+All pairs of a scan are decided together: the observed and the map splines come as
+:class:`~bsslam.spline.batch.CurveBatch` es, and each step of Fig. 6 (gates, closest
+points of the observed ends, re-query at a map end, the final distance test) is one
+vectorised computation over every (observed, map) pair, not a loop over pairs.
 """
 
 from __future__ import annotations
@@ -12,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bsslam.spline import BSplineCurve, closest_point
+from bsslam.spline.batch import CurveBatch, closest_points_batch
 
 
 @dataclass(frozen=True)
@@ -41,87 +46,89 @@ class Match:
         return self.t_ini + (np.asarray(u) - self.u_ini) * scale
 
 
-def control_point_gap(a: BSplineCurve, b: BSplineCurve) -> float:
-    """Smallest distance between a control point of ``a`` and one of ``b`` (m)."""
-    d = a.control_points[:, None, :] - b.control_points[None, :, :]
-    return float(np.sqrt(np.min(np.einsum("ijk,ijk->ij", d, d))))
+def _ragged(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For groups of ``counts`` (k,) items: each item's group (Σ,) and its position in it (Σ,)."""
+    owner = np.repeat(np.arange(counts.shape[0]), counts)
+    return owner, np.arange(owner.shape[0]) - np.repeat(np.cumsum(counts) - counts, counts)
 
 
-def _decide(observed: BSplineCurve, mapped: BSplineCurve, feature_id: int, match_distance_m: float,
-            t_ends: np.ndarray, u_ends: np.ndarray) -> Match | None:
-    """Fig. 6 of the paper for one pair, given the map parameters ``t_ends`` (2,) closest to
-    the observed spline's ends and the observed parameters ``u_ends`` (2,) to use for them
-    (the observed ends, or — where ``t`` is an end of the map spline — the observed point
-    closest to that map end)."""
-    lo_m, hi_m = mapped.domain
-    tol = 1e-6 * max(1.0, hi_m - lo_m)
-    t_ini, t_fin = float(t_ends[0]), float(t_ends[1])
-    u_ini, u_fin = float(u_ends[0]), float(u_ends[1])
-    if not (t_fin > t_ini and u_fin > u_ini):
-        return None  # opposite orientation (far side of a wall) or no overlap
-    gap = observed.evaluate(np.array([u_ini, u_fin])) - mapped.evaluate(np.array([t_ini, t_fin]))
-    if np.max(np.hypot(gap[:, 0], gap[:, 1])) > match_distance_m:
-        return None
-    return Match(feature_id, u_ini, u_fin, t_ini, t_fin, at_lo=t_ini <= lo_m + tol, at_hi=t_fin >= hi_m - tol)
+def control_point_gaps(a: CurveBatch, b: CurveBatch, ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
+    """(k,) smallest distance between a control point of curve ``ia[j]`` of ``a`` and one of
+    curve ``ib[j]`` of ``b`` (m), for k pairs."""
+    ta, tb = a.table, b.table
+    na = ta.cp_start[ia + 1] - ta.cp_start[ia]
+    nb = tb.cp_start[ib + 1] - tb.cp_start[ib]
+    pair, local = _ragged(na * nb)                 # every (point of a, point of b) of every pair
+    ra = ta.cp_start[ia][pair] + local // nb[pair]
+    rb = tb.cp_start[ib][pair] + local % nb[pair]
+    d = a.control_points[ra] - b.control_points[rb]
+    d2 = np.einsum("ij,ij->i", d, d)
+    return np.sqrt(np.minimum.reduceat(d2, np.cumsum(na * nb) - na * nb))
 
 
-def _at_end(t: np.ndarray, curve: BSplineCurve) -> np.ndarray:
-    lo, hi = curve.domain
-    tol = 1e-6 * max(1.0, hi - lo)
-    return (t <= lo + tol) | (t >= hi - tol)
+def _at_end(t: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Whether parameters t are at the lower / upper end of domains [lo, hi] (same shapes)."""
+    tol = 1e-6 * np.maximum(1.0, hi - lo)
+    return t <= lo + tol, t >= hi - tol
 
 
-def _match_many(observed: list[BSplineCurve], mapped: BSplineCurve, feature_id: int,
-                match_distance_m: np.ndarray) -> list[Match | None]:
-    """Fig. 6 of the paper for several observed splines against one map spline (None where
-    a pair does not match), with one closest-point query for all their end points."""
-    ends = np.vstack([o.evaluate(np.array(o.domain)) for o in observed])          # (2k, 2)
-    t_ends, _, _ = closest_point(mapped, ends)
-    t_ends = t_ends.reshape(-1, 2)
-    requery = _at_end(t_ends, mapped)                                             # (k, 2)
-    map_ends = mapped.evaluate(t_ends[requery]) if requery.any() else np.empty((0, 2))
-    out, used = [], 0
-    for i, obs in enumerate(observed):
-        u_ends = np.array(obs.domain, dtype=float)
-        n_q = int(requery[i].sum())
-        if n_q:
-            # the observed end lies beyond the map spline: the correspondence starts at the map
-            # spline's end instead, at the observed point closest to it
-            u_new, _, _ = closest_point(obs, map_ends[used:used + n_q])
-            u_ends[requery[i]] = u_new
-            used += n_q
-        out.append(_decide(obs, mapped, feature_id, float(match_distance_m[i]), t_ends[i], u_ends))
-    return out
-
-
-def associate(observed: list[BSplineCurve], mapped: dict[int, BSplineCurve], gate_m,
-              match_distance_m) -> list[list[Match]]:
-    """Match every observed spline against the candidate map splines.
+def associate(observed: CurveBatch, mapped: CurveBatch, feature_ids: np.ndarray, candidates: np.ndarray,
+              gate_m, match_distance_m) -> list[list[Match]]:
+    """Match every observed spline against the candidate map splines (Fig. 6 of the paper).
 
     Args:
-        observed: observed splines in the world frame.
-        mapped: candidate map splines (already limited to the robot's surroundings) by id.
-        gate_m: δ_mincp, the cheap control-point gate (m): one value, or one per observed spline.
-        match_distance_m: δ_match (m): one value, or one per observed spline.
+        observed: the k observed splines, world frame.
+        mapped: the map splines (world frame).
+        feature_ids: (C,) feature id of each curve of ``mapped``.
+        candidates: indices of the curves of ``mapped`` to try (the robot's surroundings).
+        gate_m: δ_mincp, the cheap control-point gate (m): one value, or (k,).
+        match_distance_m: δ_match (m): one value, or (k,).
     Returns:
         for each observed spline, its matches sorted by ``u_ini``.
     """
-    gates = np.broadcast_to(np.asarray(gate_m, dtype=float), (len(observed),))
-    deltas = np.broadcast_to(np.asarray(match_distance_m, dtype=float), (len(observed),))
-    obs_boxes = [o.bbox() for o in observed]
-    result: list[list[Match]] = [[] for _ in observed]
-    for fid, curve in mapped.items():
-        b = curve.bbox()
-        # bounding boxes farther apart than the gate cannot pass it; then the control points
-        near = [i for i, ob in enumerate(obs_boxes)
-                if not (b[0] - ob[2] > gates[i] or ob[0] - b[2] > gates[i] or
-                        b[1] - ob[3] > gates[i] or ob[1] - b[3] > gates[i])
-                and control_point_gap(observed[i], curve) <= gates[i]]
-        if not near:
-            continue
-        for i, m in zip(near, _match_many([observed[i] for i in near], curve, fid, deltas[near])):
-            if m is not None:
-                result[i].append(m)
+    k = observed.table.n_curves
+    result: list[list[Match]] = [[] for _ in range(k)]
+    candidates = np.asarray(candidates, dtype=np.intp)
+    if k == 0 or candidates.size == 0:
+        return result
+    gates = np.broadcast_to(np.asarray(gate_m, dtype=float), (k,))
+    deltas = np.broadcast_to(np.asarray(match_distance_m, dtype=float), (k,))
+    ob = observed.bboxes()[:, None, :]                       # (k, 1, 4)
+    mb = mapped.bboxes()[candidates][None, :, :]             # (1, F, 4)
+    g = gates[:, None]
+    # bounding boxes farther apart than the gate cannot pass it; then the control points
+    near = ~((mb[..., 0] - ob[..., 2] > g) | (ob[..., 0] - mb[..., 2] > g) |
+             (mb[..., 1] - ob[..., 3] > g) | (ob[..., 1] - mb[..., 3] > g))
+    io, jf = np.nonzero(near)                                # pairs, observed-major
+    im = candidates[jf]
+    if io.size:
+        close = control_point_gaps(observed, mapped, io, im) <= gates[io]
+        io, jf, im = io[close], jf[close], im[close]
+    if io.size == 0:
+        return result
+    # Closest map points to both ends of each observed spline: (P, 2) parameters.
+    to, tm = observed.table, mapped.table
+    u_ends = np.column_stack([to.lo[io], to.hi[io]])
+    obs2, map2 = np.repeat(io, 2), np.repeat(im, 2)
+    end_points = observed.evaluate(obs2, u_ends.ravel())[0]
+    t_ends = closest_points_batch(mapped, map2, end_points)[0].reshape(-1, 2)
+    lo_m, hi_m = tm.lo[im][:, None], tm.hi[im][:, None]
+    at_lo, at_hi = _at_end(t_ends, lo_m, hi_m)
+    requery = at_lo | at_hi
+    if requery.any():
+        # the observed end lies beyond the map spline: the correspondence starts at the map
+        # spline's end instead, at the observed point closest to it
+        map_end = mapped.evaluate(map2[requery.ravel()], t_ends[requery])[0]
+        u_ends[requery] = closest_points_batch(observed, obs2[requery.ravel()], map_end)[0]
+    # opposite orientation (far side of a wall) or no overlap, then the distance test
+    ordered = (t_ends[:, 1] > t_ends[:, 0]) & (u_ends[:, 1] > u_ends[:, 0])
+    gap = observed.evaluate(obs2, u_ends.ravel())[0] - mapped.evaluate(map2, t_ends.ravel())[0]
+    gap = np.hypot(gap[:, 0], gap[:, 1]).reshape(-1, 2).max(axis=1)
+    accepted = np.flatnonzero(ordered & (gap <= deltas[io]))
+    for p in accepted:  # one Match per accepted pair (a handful per scan)
+        result[io[p]].append(Match(int(feature_ids[im[p]]), float(u_ends[p, 0]), float(u_ends[p, 1]),
+                                   float(t_ends[p, 0]), float(t_ends[p, 1]),
+                                   at_lo=bool(at_lo[p, 0]), at_hi=bool(at_hi[p, 1])))
     for matches in result:
         matches.sort(key=lambda m: m.u_ini)
     return result

@@ -6,6 +6,7 @@ predict → segment and fit → associate → update → extend / add.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -16,13 +17,15 @@ from bsslam.errors import FilterError, FitError, InputError
 from bsslam.scan import LaserScan, ObservedSpline, extract_splines
 from bsslam.scan.refine import refine_for_map
 from bsslam.slam.association import Match, associate
-from bsslam.slam.ekf import StackedGain, gate_threshold, innovation_variances
+from bsslam.slam.ekf import CovarianceColumns, StackedGain, Workspace, gate_threshold, innovation_variances
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
 from bsslam.slam.features import MapSpline, SplineFeature
+from bsslam.slam.map_curves import MapCurves
 from bsslam.slam.motion import motion_noise, predict
-from bsslam.slam.observation import laser_pose, predict_beams
+from bsslam.slam.observation import laser_pose, predict_beams_batch
 from bsslam.slam.state import JointState
 from bsslam.spline import FitResult, closest_point, extend_curve, fit_curve
+from bsslam.spline.batch import curve_table
 from bsslam.trajectory import wrap_angle
 
 
@@ -70,27 +73,37 @@ class _Linearization:
     """Stacked ranges and Jacobian of the beams of one scan at one estimate.
 
     Attributes:
-        cols: (c,) touched state indices; H_c: (m, c); residual: (m,) z − h(x);
-        owner: (m,) index of each row's beam group; row_in_group: (m,) its beam in the group;
-        hit_t: (m,) map-spline parameter of each hit.
+        cols: (c,) touched state indices; H_c: (m, c); residual: (m,) z − h(x) (m);
+        beam: (m,) the beam (index into the linearised :class:`_Beams`) of each row;
+        hit_t: (m,) map-spline parameter of each hit (m).
     """
 
     cols: np.ndarray
     H_c: np.ndarray
     residual: np.ndarray
-    owner: np.ndarray
-    row_in_group: np.ndarray
+    beam: np.ndarray
     hit_t: np.ndarray
 
 
-@dataclass
-class _BeamGroup:
-    """Beams of one scan assigned to one map spline."""
+@dataclass(frozen=True, eq=False)
+class _Beams:
+    """The beams of one scan assigned to map splines, each (k,).
 
-    feature: SplineFeature
+    Attributes:
+        curve: index of each beam's map spline in the filter's :class:`MapCurves` table.
+        bearings: robot-frame bearings (rad); ranges: measured ranges (m);
+        t0: Newton start on the map spline (m).
+    """
+
+    curve: np.ndarray
     bearings: np.ndarray
     ranges: np.ndarray
     t0: np.ndarray
+
+    @functools.cached_property
+    def used_curves(self) -> np.ndarray:
+        """The distinct map splines of the beams."""
+        return np.unique(self.curve)
 
 
 class SplineSLAM:
@@ -110,6 +123,8 @@ class SplineSLAM:
         self.features: dict[int, SplineFeature] = {}
         self.steps = 0
         self._next_id = 0
+        self._map: MapCurves | None = None  # batch table of the map splines, see _map_curves
+        self._workspace = Workspace()        # scratch of the covariance update
         self._gate = gate_threshold(self.config.observation.gate_probability)
         self._loose_gate = gate_threshold(1.0 - (1.0 - self.config.observation.gate_probability) / 100.0)
 
@@ -189,30 +204,43 @@ class SplineSLAM:
         report.observed_splines = len(features.splines)
         return features.splines
 
+    def _map_curves(self) -> MapCurves | None:
+        """The map splines' batch table, rebuilt only when a spline was added, extended or removed."""
+        features = list(self.features.values())
+        if not features:
+            return None
+        if self._map is None or not self._map.describes(features):
+            self._map = MapCurves(features)
+        return self._map
+
     def _associate(self, observed: list[ObservedSpline], offset: np.ndarray) -> list[list[Match]]:
         cfg = self.config.association
-        lp = laser_pose(self.state.pose, offset)
-        world = [o.curve.transformed(lp[2], lp[:2]) for o in observed]
-        x = self.state.x
-        candidates = {}
-        for f in self.features.values():
-            curve = f.curve(x)
-            b = curve.bbox()
-            # distance from the robot to the box; only nearby features are candidates
-            dx = max(b[0] - lp[0], 0.0, lp[0] - b[2])
-            dy = max(b[1] - lp[1], 0.0, lp[1] - b[3])
-            if dx * dx + dy * dy <= cfg.map_radius_m ** 2:
-                candidates[f.id] = curve
-        if not candidates or not observed:
+        mc = self._map_curves()
+        if mc is None or not observed:
             return [[] for _ in observed]
+        lp = laser_pose(self.state.pose, offset)
+        cp = mc.control_points(self.state.x)
+        b = mc.table.bboxes(cp)
+        # distance from the robot to each box; only nearby features are candidates
+        dx = np.maximum(np.maximum(b[:, 0] - lp[0], 0.0), lp[0] - b[:, 2])
+        dy = np.maximum(np.maximum(b[:, 1] - lp[1], 0.0), lp[1] - b[:, 3])
+        candidates = np.flatnonzero(dx * dx + dy * dy <= cfg.map_radius_m ** 2)
+        if candidates.size == 0:
+            return [[] for _ in observed]
+        table = curve_table([o.curve.knots for o in observed], [o.curve.degree for o in observed])
+        local = np.vstack([o.curve.control_points for o in observed])      # robot (laser) frame
+        c, s = np.cos(lp[2]), np.sin(lp[2])
+        world = table.with_control_points(local @ np.array([[c, s], [-s, c]]) + lp[:2])
         # Grow both thresholds by the predicted uncertainty of each observed spline's far end.
         P = self.state.P
-        reach = np.array([np.max(np.hypot(*o.curve.control_points[[0, -1]].T)) for o in observed])
+        ends = np.hypot(local[:, 0], local[:, 1])
+        reach = np.maximum(ends[table.cp_start[:-1]], ends[table.cp_start[1:] - 1])
         sigma_end = np.sqrt(P[0, 0] + P[1, 1] + reach ** 2 * P[2, 2])
         grow = cfg.uncertainty_sigmas * sigma_end
         delta = np.minimum(cfg.match_distance_m + grow, cfg.max_match_distance_m)
         gate = cfg.control_point_gate_factor * self.config.spline.knot_spacing_m + grow
-        return associate(world, candidates, gate, delta)
+        maps = mc.table.with_control_points(cp, candidates)
+        return associate(world, maps, mc.ids, candidates, gate, delta)
 
     def _reassociate(self, observed, matches, offset, report: StepReport) -> None:
         """Give splines that matched nothing a second chance at the corrected pose before
@@ -227,10 +255,13 @@ class SplineSLAM:
             for i, m in zip(lost, found):
                 matches[i] = m
 
-    def _beam_groups(self, observed: list[ObservedSpline], matches: list[list[Match]]) -> list[_BeamGroup]:
+    def _beam_groups(self, observed: list[ObservedSpline], matches: list[list[Match]]) -> _Beams | None:
+        """The beams of the matched intervals, each with its map spline and Newton start;
+        a beam inside several matched intervals goes to the first (by ``u_ini``)."""
         stride = self.config.observation.beam_stride
-        groups: dict[int, list[tuple]] = {}
-        for obs, obs_matches in zip(observed, matches):
+        mc = self._map   # validated by the _associate that produced ``matches``
+        parts = []
+        for obs, obs_matches in zip(observed, matches):  # a handful of splines and matches per scan
             taken = np.zeros(obs.params.shape[0], dtype=bool)
             if stride > 1:
                 taken[np.arange(obs.params.shape[0]) % stride != 0] = True
@@ -239,83 +270,56 @@ class SplineSLAM:
                 if not sel.any():
                     continue
                 taken |= sel
-                groups.setdefault(m.feature_id, []).append(
-                    (obs.angles[sel], obs.ranges[sel], m.map_parameter(obs.params[sel])))
-        out = []
-        for fid, parts in groups.items():
-            b, r, t = (np.concatenate(p) for p in zip(*parts))
-            out.append(_BeamGroup(self.features[fid], b, r, t))
-        return out
+                parts.append((np.full(int(sel.sum()), mc.index[m.feature_id]), obs.angles[sel],
+                              obs.ranges[sel], m.map_parameter(obs.params[sel])))
+        if not parts:
+            return None
+        curve, bearings, ranges, t0 = (np.concatenate(p) for p in zip(*parts))
+        return _Beams(curve, bearings, ranges, t0)
 
-    def _linearize(self, groups: list[_BeamGroup], x: np.ndarray, offset: np.ndarray,
+    def _linearize(self, beams: _Beams, x: np.ndarray, offset: np.ndarray,
                    report: StepReport | None) -> _Linearization | None:
-        """Predicted ranges and the stacked Jacobian of every beam at the estimate ``x``.
+        """Predicted ranges and the stacked Jacobian of every beam at the estimate ``x``, in
+        one vectorised ray intersection over all the beams' map splines.
 
         Beams that miss their spline or hit it at grazing incidence are dropped (and
         counted when ``report`` is given). Returns None when no beam is left.
         """
         max_tan = math.tan(self.config.observation.max_incidence_rad)
-        pose = x[:3]
-        rows_pose, cp_cols, cp_vals, residual, owner, row_in_group, hit_t = [], [], [], [], [], [], []
-        for gi, g in enumerate(groups):
-            f = g.feature
-            pred = predict_beams(f.curve(x), pose, offset, g.bearings, t0=g.t0)
-            ok = pred.hit & np.isfinite(pred.z)
-            grazing = ok & (np.abs(pred.r) > max_tan)
-            if report is not None:
-                report.drop("missed", int((~ok).sum()))
-                report.drop("grazing", int(grazing.sum()))
-            ok &= ~grazing
-            if not ok.any():
-                continue
-            residual.append(g.ranges[ok] - pred.z[ok])
-            rows_pose.append(pred.H_pose[ok])
-            owner.append(np.full(int(ok.sum()), gi))
-            row_in_group.append(np.flatnonzero(ok))
-            hit_t.append(pred.t[ok])
-            if f.in_state:
-                cp = pred.first_cp[ok][:, None] + np.arange(f.degree + 1)[None, :]
-                cols = np.hstack([f.idx_x[cp], f.idx_y[cp]])
-                vals = np.hstack([pred.H_cp_x[ok], pred.H_cp_y[ok]])
-            else:  # localisation mode: features are fixed, H has pose columns only
-                cols = np.full((int(ok.sum()), 0), -1)
-                vals = np.zeros((int(ok.sum()), 0))
-            cp_cols.append(cols)
-            cp_vals.append(vals)
-        if not residual:
+        mc = self._map   # validated by _associate this step
+        maps = mc.batch(x, beams.used_curves)
+        pred = predict_beams_batch(maps, beams.curve, x[:3], offset, beams.bearings, t0=beams.t0)
+        ok = pred.hit & np.isfinite(pred.z)
+        grazing = ok & (np.abs(pred.r) > max_tan)
+        if report is not None:
+            report.drop("missed", int((~ok).sum()))
+            report.drop("grazing", int(grazing.sum()))
+        ok &= ~grazing
+        rows = np.flatnonzero(ok)
+        if rows.size == 0:
             return None
-        # Features may differ in degree, so pad the per-beam column lists to one width.
-        width = max(c.shape[1] for c in cp_cols)
-        cp_cols_a = np.vstack([np.pad(c, ((0, 0), (0, width - c.shape[1])), constant_values=-1) for c in cp_cols])
-        cp_vals_a = np.vstack([np.pad(v, ((0, 0), (0, width - v.shape[1]))) for v in cp_vals])
-        used = cp_cols_a >= 0
-        cols = np.concatenate([np.arange(3), np.unique(cp_cols_a[used])])
-        m = sum(r.shape[0] for r in residual)
-        H_c = np.zeros((m, cols.shape[0]))
-        H_c[:, :3] = np.vstack(rows_pose)
+        # state columns of each row's control points (x then y); −1 where there is none
+        # (padding of a lower-degree spline, or a fixed spline in localisation mode)
+        state = mc.state_rows[pred.window[rows]]                          # (m, p+1, 2)
+        real = pred.real[rows]
+        cp_cols = np.where(real[:, :, None], state, -1).transpose(0, 2, 1).reshape(rows.size, -1)
+        cp_vals = np.hstack([pred.H_cp_x[rows], pred.H_cp_y[rows]])
+        used = cp_cols >= 0
+        cols = np.concatenate([np.arange(3), np.unique(cp_cols[used])])
+        H_c = np.zeros((rows.size, cols.shape[0]))
+        H_c[:, :3] = pred.H_pose[rows]
         r_idx, _ = np.nonzero(used)
-        H_c[r_idx, np.searchsorted(cols[3:], cp_cols_a[used]) + 3] = cp_vals_a[used]
-        return _Linearization(cols, H_c, np.concatenate(residual), np.concatenate(owner),
-                              np.concatenate(row_in_group), np.concatenate(hit_t))
+        H_c[r_idx, np.searchsorted(cols[3:], cp_cols[used]) + 3] = cp_vals[used]
+        return _Linearization(cols, H_c, beams.ranges[rows] - pred.z[rows], rows, pred.t[rows])
 
     @staticmethod
-    def _select(groups: list[_BeamGroup], lin: _Linearization, keep: np.ndarray
-                ) -> tuple[list[_BeamGroup], _Linearization]:
-        """The beam groups and their linearisation restricted to the rows in ``keep``
-        (consistently renumbered), Newton restarted from the rows' last hit parameters."""
-        out = []
-        for gi, g in enumerate(groups):
-            sel = keep & (lin.owner == gi)
-            if sel.any():
-                rows = lin.row_in_group[sel]
-                out.append(_BeamGroup(g.feature, g.bearings[rows], g.ranges[rows], lin.hit_t[sel]))
-        # rows are ordered by group, then by beam: renumber groups by rank, rows by position
-        owners = lin.owner[keep]
-        kept_groups, first = np.unique(owners, return_index=True)
-        new_owner = np.searchsorted(kept_groups, owners)
-        new_row = np.arange(owners.shape[0]) - first[new_owner]
-        sub = _Linearization(lin.cols, lin.H_c[keep], lin.residual[keep], new_owner, new_row, lin.hit_t[keep])
-        return out, sub
+    def _select(beams: _Beams, lin: _Linearization, keep: np.ndarray) -> tuple[_Beams, _Linearization]:
+        """The beams and their linearisation restricted to the rows in ``keep``, Newton
+        restarted from the rows' last hit parameters."""
+        rows = lin.beam[keep]
+        sub_beams = _Beams(beams.curve[rows], beams.bearings[rows], beams.ranges[rows], lin.hit_t[keep])
+        sub = _Linearization(lin.cols, lin.H_c[keep], lin.residual[keep], np.arange(rows.size), lin.hit_t[keep])
+        return sub_beams, sub
 
     def _update(self, observed, matches, offset, report: StepReport) -> None:
         """Iterated EKF update (Gauss–Newton on the mean, one covariance update at the end).
@@ -325,43 +329,45 @@ class SplineSLAM:
         and removes most of the linearisation error after a poorly predicted turn, which is
         where the single-step filter becomes inconsistent.
         """
-        groups = self._beam_groups(observed, matches)
+        beams = self._beam_groups(observed, matches)
         report.matched_splines += sum(1 for m in matches if m)
-        if not groups:
+        if beams is None:
             return
+        mc = self._map
         R = self._range_variance
         x0 = self.state.x.copy()
         P = self.state.P
-        lin = self._linearize(groups, x0, offset, report)
+        lin = self._linearize(beams, x0, offset, report)
         if lin is None:
             return
         # Gating at the prior alone is biased: every innovation carries the same pose error,
         # so after a poorly predicted step a tight gate drops exactly the beams that disagree
         # with the prior. Gross outliers go first (loose gate at the prior); the real gate is
         # applied at the first corrected estimate with posterior variances.
-        s_diag = innovation_variances(P, lin.cols, lin.H_c, R)
+        columns = CovarianceColumns(P)
+        s_diag = innovation_variances(P, lin.cols, lin.H_c, R, P_cc=columns.block(lin.cols))
         coarse = lin.residual ** 2 <= self._loose_gate * s_diag
         report.drop("gate", int((~coarse).sum()))
         if not coarse.any():
             return
-        groups, lin = self._select(groups, lin, coarse)
-        gain = StackedGain(P, lin.cols, lin.H_c, R)
+        beams, lin = self._select(beams, lin, coarse)
+        gain = StackedGain(P, lin.cols, lin.H_c, R, P_c=columns.get(lin.cols))
         x_i = x0 + gain.correction(lin.residual)[0]
-        lin = self._linearize(groups, x_i, offset, None)
+        lin = self._linearize(beams, x_i, offset, None)
         if lin is None:
             return
         fine = lin.residual ** 2 <= self._gate * gain.posterior_variances(P, lin.cols, lin.H_c, R)
         report.drop("gate", int((~fine).sum()))
         if not fine.any():
             return
-        groups, lin = self._select(groups, lin, fine)
+        beams, lin = self._select(beams, lin, fine)
         for it in range(self.config.observation.iterations):
             if it:
-                lin = self._linearize(groups, x_i, offset, None)
+                lin = self._linearize(beams, x_i, offset, None)
                 if lin is None:
                     return
-                groups, lin = self._select(groups, lin, np.ones(lin.residual.shape[0], dtype=bool))
-            gain = StackedGain(P, lin.cols, lin.H_c, R)
+                beams, lin = self._select(beams, lin, np.ones(lin.residual.shape[0], dtype=bool))
+            gain = StackedGain(P, lin.cols, lin.H_c, R, P_c=columns.get(lin.cols))
             # IEKF: ν_i = z − h(x_i) − H_i (x₀ − x_i)
             nu = lin.residual - lin.H_c @ (x0[lin.cols] - x_i[lin.cols])
             dx, nis = gain.correction(nu)
@@ -371,10 +377,10 @@ class SplineSLAM:
             if step[0] < 1e-4 and step[1] < 1e-4 and step[2] < 1e-5:  # 0.1 mm, 0.01 mrad: far below σ
                 break
         self.state.x[:] = x_i
-        gain.update_covariance(self.state)
+        gain.update_covariance(self.state, self._workspace)
         self.state.x[2] = wrap_angle(self.state.x[2])
-        for g in groups:
-            g.feature.observations += 1
+        for c in beams.used_curves:
+            mc.features[c].observations += 1
         report.innovations = np.concatenate([report.innovations, nu])
         report.innovation_variances = np.concatenate([report.innovation_variances, gain.S_diag])
         report.nis += nis

@@ -107,6 +107,158 @@ def check_params(params: object, m: int) -> np.ndarray:
     return t
 
 
+# Relative margin of the noise-gain screen: it rejects a span count only when its lower bound
+# exceeds the limit by more than rounding could explain, so the exact test decides the rest.
+_SCREEN_MARGIN = 1e-6
+
+
+# Span counts screened together: the first well-posed count usually passes, so screening
+# all of them (up to ~50) at once would mostly be wasted.
+_SCREEN_CHUNK = 6
+
+
+def candidate_span_counts(t: np.ndarray, distinct: np.ndarray, multiplicity: np.ndarray, degree: int,
+                          most: int, max_noise_gain: float | None = None) -> np.ndarray:
+    """All of :func:`iter_span_counts`, as a (k,) int array."""
+    return np.array(list(iter_span_counts(t, distinct, multiplicity, degree, most, max_noise_gain)), dtype=int)
+
+
+def iter_span_counts(t: np.ndarray, distinct: np.ndarray, multiplicity: np.ndarray, degree: int,
+                     most: int, max_noise_gain: float | None = None):
+    """The span counts ``most … 1`` (descending) that :func:`fit_curve` must still try.
+
+    For every count at once (one basis evaluation for all their knot vectors): the clamped
+    knot vector exactly as ``fit_curve`` builds it; Schoenberg–Whitney on the distinct
+    parameters, decided as :func:`satisfies_schoenberg_whitney` decides it; and, with
+    ``max_noise_gain``, a lower bound of each control point's noise gain. The gain of
+    control point i is ``‖Φ_i‖ = sqrt((BᵀB)⁻¹_ii)``; for the principal block M of ``A = BᵀB``
+    on the 2·degree + 1 neighbours of i, ``(M⁻¹)_ii ≤ (A⁻¹)_ii`` (conditioning on fewer
+    variables), so a count whose bound exceeds the limit cannot pass the exact test.
+
+    Args:
+        t: (m,) the data parameters (m), non-decreasing.
+        distinct: (d,) the distinct values of ``t``; multiplicity: (d,) their counts.
+        degree: polynomial degree p.
+        most: the largest span count (≥ 1 for any candidate).
+        max_noise_gain: the limit of :func:`least_squares_operator`, or None.
+
+    Yields:
+        int span counts, descending; the noise screen runs on a few counts at a time, as
+        the caller asks for more.
+    """
+    p = degree
+    spans = np.arange(most, 0, -1)
+    if spans.size == 0:
+        return
+    k = spans.shape[0]
+    n = spans + p                                        # control points per candidate
+    start, length, end = float(t[0]), float(t[-1] - t[0]), float(t[-1])
+    # all knot vectors, bit for bit as clamped_knots_with_spans (+ the exact end) builds them
+    owner, local = _groups(n + p + 1)
+    j = local - p
+    interior = start + length * (j / spans[owner])
+    K = np.where(local <= p, start, np.where(local >= n[owner], end, interior))
+    knot_start = np.concatenate([[0], np.cumsum(n + p + 1)])
+    # span of every distinct parameter under every candidate (find_span, exactly)
+    d = distinct.shape[0]
+    q_owner = np.repeat(np.arange(k), d)
+    tq = np.tile(distinct, k)
+    found = np.searchsorted(owner + 1j * K, q_owner + 1j * tq, side="right") - 1 - knot_start[q_owner]
+    span_local = np.clip(found, p, n[q_owner] - 1)
+    _, values = basis_functions(K, p, tq, span=knot_start[q_owner] + span_local)
+    beta = values[0]                                     # (k·d, p+1)
+    cp_start = np.concatenate([[0], np.cumsum(n)])
+    cp = cp_start[q_owner][:, None] + span_local[:, None] - p + np.arange(p + 1)   # global cp rows
+    row = np.tile(np.arange(d), k)
+
+    # Schoenberg–Whitney per candidate: the greedy match of satisfies_schoenberg_whitney
+    nonzero = beta > 0
+    first = np.full(cp_start[-1], d)
+    last = np.full(cp_start[-1], -1)
+    rows = np.broadcast_to(row[:, None], nonzero.shape)[nonzero]
+    np.minimum.at(first, cp[nonzero], rows)
+    np.maximum.at(last, cp[nonzero], rows)
+    cp_owner, i = _groups(n)
+    # a running maximum per candidate: offset each candidate above everything before it
+    big = d + int(n.max()) + 1
+    matched = i + np.maximum.accumulate(first - i + cp_owner * big) - cp_owner * big
+    ok = np.bincount(cp_owner, weights=(matched > last) | (last < 0), minlength=k) == 0
+
+    well_posed = np.flatnonzero(ok)
+    if max_noise_gain is None:
+        yield from (int(c) for c in spans[well_posed])
+        return
+    weight = multiplicity[row]
+    for at in range(0, well_posed.shape[0], _SCREEN_CHUNK):
+        chunk = well_posed[at: at + _SCREEN_CHUNK]
+        # the chunk's rows, with its control points renumbered from 0
+        rank = np.full(k, -1)
+        rank[chunk] = np.arange(chunk.shape[0])
+        rows_in = rank[q_owner] >= 0
+        n_c = n[chunk]
+        start_c = np.concatenate([[0], np.cumsum(n_c)])
+        owner_rows = q_owner[rows_in]
+        cp_c = cp[rows_in] - cp_start[owner_rows][:, None] + start_c[rank[owner_rows]][:, None]
+        noisy = _surely_too_noisy(beta[rows_in], cp_c, weight[rows_in], start_c, _groups(n_c)[0], p,
+                                  max_noise_gain)
+        yield from (int(c) for c in spans[chunk[~noisy]])
+
+
+def _groups(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For consecutive groups of ``counts`` items: each item's group and index in it."""
+    owner = np.repeat(np.arange(counts.shape[0]), counts)
+    return owner, np.arange(owner.shape[0]) - np.repeat(np.cumsum(counts) - counts, counts)
+
+
+def _surely_too_noisy(beta, cp, weight, cp_start, cp_owner, p, max_noise_gain) -> np.ndarray:
+    """(k,) bool: for k candidates satisfying Schoenberg–Whitney (so A is positive
+    definite), whether some control point's local lower bound of its squared noise gain
+    exceeds the limit (see :func:`iter_span_counts`).
+
+    Args:
+        beta: (r, p+1) basis values of the data rows; cp: (r, p+1) their control points,
+            numbered across candidates; weight: (r,) multiplicity of each row;
+        cp_start: (k+1,) first control point of each candidate; cp_owner: (N,) candidate
+            of each control point; p: degree; max_noise_gain: the limit.
+    """
+    N = cp_start[-1]
+    k = cp_start.shape[0] - 1
+    # band of A = BᵀB: band[c, e] = A[c, c + e], from each datum's degree + 1 basis values
+    band = np.zeros(N * (p + 1))
+    for r in range(p + 1):
+        for e in range(p + 1 - r):
+            band += np.bincount(cp[:, r] * (p + 1) + e, weights=weight * beta[:, r] * beta[:, r + e],
+                                minlength=N * (p + 1))
+    band = band.reshape(N, p + 1)
+    # the (2p+1)² principal block around each control point; neighbours outside the curve
+    # become decoupled unit entries, which leave the bound unchanged
+    w = 2 * p + 1
+    a, b = np.meshgrid(np.arange(w), np.arange(w), indexing="ij")
+    c = np.arange(N)[:, None, None] - p
+    lo_i = c + np.minimum(a, b)
+    gap = np.abs(a - b)
+    inside = ((lo_i >= cp_start[cp_owner][:, None, None]) & (c + np.maximum(a, b) < cp_start[cp_owner + 1][:, None, None])
+              & (gap <= p))
+    M = np.where(inside, band[np.clip(lo_i, 0, N - 1), np.minimum(gap, p)], 0.0)
+    outside = (c + np.arange(w) < cp_start[cp_owner][:, None, None]) | (
+        c + np.arange(w) >= cp_start[cp_owner + 1][:, None, None])        # (N, 1, w)
+    diag = np.arange(w)
+    M[:, diag, diag] = np.where(outside[:, 0, :], 1.0, M[:, diag, diag])
+    # Nearly singular blocks (barely determined control points, the very cases to catch)
+    # must not stop the solve: M + εI is positive definite and (M + εI)⁻¹ ⪯ M⁻¹, so the
+    # bound stays a lower bound.
+    M[:, diag, diag] += 1e-13 * np.max(M[:, diag, diag], axis=1, keepdims=True)
+    rhs = np.zeros((N, w, 1))
+    rhs[:, p, 0] = 1.0
+    try:
+        with np.errstate(all="ignore"):
+            gain2 = np.linalg.solve(M, rhs)[:, p, 0]    # (M⁻¹)_ii ≤ (A⁻¹)_ii = ‖Φ_i‖²
+    except np.linalg.LinAlgError:  # pragma: no cover - M + εI is positive definite
+        return np.zeros(k, dtype=bool)
+    noisy = np.isfinite(gain2) & (gain2 > max_noise_gain ** 2 * (1.0 + _SCREEN_MARGIN))
+    return np.bincount(cp_owner, weights=noisy, minlength=k) > 0
+
+
 @dataclass(frozen=True, eq=False)
 class FitResult:
     """A least-squares spline fit.
@@ -153,14 +305,15 @@ def fit_curve(points: object, degree: int, spacing_m: float, params: object = No
     length = float(t[-1] - t[0])
     if not length > 0:
         raise FitError("all points share one parameter (coincident points); nothing to fit")
-    distinct = np.unique(t)
+    distinct, multiplicity = np.unique(t, return_counts=True)
     # n_control = spans + degree can never exceed the number of distinct parameters.
     most = min(span_count(length, spacing_m), distinct.shape[0] - degree)
-    for spans in range(most, 0, -1):
+    # The most spans that give a well-posed fit win. Schoenberg–Whitney and a lower bound of
+    # the noise gain are decided for all span counts at once; only the survivors are
+    # factorised, from the most spans down, until one passes.
+    for spans in iter_span_counts(t, distinct, multiplicity, degree, most, max_noise_gain):
         knots = clamped_knots_with_spans(length, spans, degree, start=float(t[0]))
         knots[-degree - 1 :] = t[-1]  # exactly the last parameter, not start + length
-        if not satisfies_schoenberg_whitney(knots, degree, distinct):
-            continue
         phi = least_squares_operator(collocation_matrix(knots, degree, t), max_noise_gain)
         if phi is None:
             continue
