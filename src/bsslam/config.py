@@ -107,7 +107,10 @@ class ObservationConfig:
     """The range observation model and its gates (paper §III-D, §III-E).
 
     Attributes:
-        sigma_range_m: σ of one laser range (m).
+        sigma_range_m: σ of one laser range (m). The default is for real lasers and
+            buildings: a SICK LMS's few-centimetre range error plus walls that are not the
+            smooth curves a spline draws (door frames, skirting, posters). The simulator's
+            experiments set it to the simulated 5 mm.
         sigma_model_m: σ of the map splines' unmodelled error along a beam — what is left of
             the fit bias after ``mapping.fit_bias_sigmas``, the fixed chord-length parameters
             of (40)–(46) — added in quadrature to ``sigma_range_m`` (m). Measured, 20 runs ×
@@ -125,7 +128,7 @@ class ObservationConfig:
             single linearisation).
     """
 
-    sigma_range_m: float = 0.005
+    sigma_range_m: float = 0.03
     sigma_model_m: float = 0.0025
     r_inflation: float = 1.0
     gate_probability: float = 0.99
@@ -201,14 +204,16 @@ class MappingConfig:
         prune_after_scans: a map spline that no update has used within this many scans of
             its creation leaves the state (0 keeps every spline). Real buildings are full of
             things seen once — people, chair legs, glass, a door swinging — and each would
-            otherwise stay in the state for good and cost O(n²) in every later update.
+            otherwise stay in the state for good and cost O(n²) in every later update
+            (first 300 scans of intel-noisy: 1919 state dimensions without pruning, 1123
+            with 2).
     """
 
     extend: bool = True
     min_extension_m: float = 0.5
     max_extension_rms_m: float = 0.015
     fit_bias_sigmas: float | None = 4.0
-    prune_after_scans: int = 0
+    prune_after_scans: int = 2
 
     def __post_init__(self) -> None:
         _check(self.min_extension_m >= 0, "mapping.min_extension_m must be ≥ 0")
@@ -231,8 +236,8 @@ class FrontendConfig:
         paper's filter against the odometry model they simulate).
     update_distance_m, update_angle_rad: the filter processes a scan once the robot has
         moved this far (m) or turned this much (rad) since the last scan it processed
-        (GMapping's linearUpdate/angularUpdate, Karto's minimum travel); the scans in between
-        only feed the front end. 0 and 0 process every scan.
+        (GMapping's linearUpdate/angularUpdate, whose defaults these are); the scans in
+        between only feed the front end. 0 and 0 process every scan.
 
     Beams and points
         min_range_m: beams at or below this range are dropped (m).
@@ -312,8 +317,8 @@ class FrontendConfig:
 
     # beams and points
     enabled: bool = True
-    update_distance_m: float = 0.5
-    update_angle_rad: float = math.radians(15.0)
+    update_distance_m: float = 1.0
+    update_angle_rad: float = 0.5
     min_range_m: float = 0.05
     max_range_m: float = 30.0
     scan_voxel_m: float = 0.1

@@ -43,12 +43,9 @@ def _nees_run(seed):
     return pose_errors(result.estimate, data.ground_truth).nees
 
 
-# Known gap, kept visible: at the defaults the mean NEES is inside the band on 53 of 59 steps
-# (90% needs 54); early steps are slightly conservative (1.9–2.2 against a lower bound of
-# 2.02). A smaller sigma_model_m passes here but fails the other worlds worse (measured:
-# 2.0 mm gives 93% here, 56% in corridor-loop, 75% in mixed; 2.5 mm gives 90%, 68%, 86%).
-# strict: the test turns into a failure once the filter meets the bound.
-@pytest.mark.xfail(strict=True, reason="mean NEES inside the band on 53/59 steps, 54 needed (open issue)")
+# At the defaults (map splines no later scan confirms are pruned after 2 scans) the mean
+# NEES is inside the band on 56 of 59 steps here; 51/59 in mixed, 48/59 in corridor-loop.
+# Without pruning it was 53/59 here (40/59, 51/59 in the other two worlds).
 def test_monte_carlo_nees_inside_chi2_band_without_extension():
     runs = 20
     nees = np.array(run_monte_carlo(_nees_run, list(range(100, 100 + runs)), workers=2))
