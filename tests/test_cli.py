@@ -102,8 +102,13 @@ def test_run_on_the_first_150_intel_scans(tmp_path):
     out = tmp_path / "run"
     invoke("run", DATA / "intel" / "intel-rawodom.clf", "--steps", 150, "--out", out,
            "--reference", DATA / "intel" / "intel-rawodom.gt.txt")
-    summary = check_run_folder((out / "latest").resolve(), 150)
-    assert "ate_m" in summary
+    run = (out / "latest").resolve()
+    summary = check_run_folder(run, 150)
+    assert "ate_m" in summary and "frontend_ate_m" in summary
+    # the front end's own trajectory, one pose per scan at the same stamps
+    np.testing.assert_array_equal(read_trajectory(run / "frontend.tum").stamps,
+                                  read_trajectory(run / "trajectory.tum").stamps)
+    assert summary["filter_steps"] <= 150 and summary["frontend_matched"] + summary.get("frontend_fallbacks", 0) == 149
     # stamps come from the log
     first = read_trajectory((out / "latest" / "trajectory.tum").resolve()).stamps[0]
     log_first = next(float(line.split()[-3]) for line in open(DATA / "intel" / "intel-rawodom.clf")

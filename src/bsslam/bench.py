@@ -32,6 +32,7 @@ class BenchRow:
     state_size: int
     ate_m: float
     odometry_ate_m: float
+    frontend_ate_m: float
     relations: str
     peak_rss_mb: float
 
@@ -49,11 +50,13 @@ def bench_log(log: Path, config: SLAMConfig, steps: int | None = None, progress=
     wall = time.perf_counter() - t0
     ref_path = log.with_suffix(".gt.txt")
     nan = float("nan")
-    ate_m = odo_m = nan
+    ate_m = odo_m = fe_m = nan
     if ref_path.exists():
         ref = read_trajectory(ref_path)
         ate_m = ate(result.estimate, ref)[0]
         odo_m = ate(result.odometry, ref)[0]
+        if result.frontend is not None:
+            fe_m = ate(result.frontend, ref)[0]
     rel = "-"
     rel_path = log.parent / "intel.relations"
     if log.name.startswith("intel") and rel_path.exists():
@@ -61,5 +64,5 @@ def bench_log(log: Path, config: SLAMConfig, steps: int | None = None, progress=
         if r.used:
             rel = f"{r.trans_mean_m:.3f}±{r.trans_std_m:.3f} m, {r.rot_mean_deg:.2f}±{r.rot_std_deg:.2f}° ({r.used})"
     return BenchRow(log.name, result.steps, wall, 1000.0 * result.wall_time_s / max(result.steps, 1),
-                    len(result.map), int(result.state_sizes.max()) if result.steps else 3, ate_m, odo_m, rel,
+                    len(result.map), int(result.state_sizes.max()) if result.steps else 3, ate_m, odo_m, fe_m, rel,
                     resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)

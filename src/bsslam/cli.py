@@ -127,7 +127,6 @@ def run(
         config = _load_config(config_file)
         if mode is not None:
             config = config.replace(mode=mode)
-            config.__post_init__()
         data = open_dataset(log, format=fmt, strict=strict, scan_topic=scan_topic, odom_topic=odom_topic)
         ref = read_trajectory(reference) if reference else None
         run_dir = make_run_dir(out)
@@ -174,6 +173,7 @@ def bench(
     data: Path = typer.Option(Path("../shared/data"), help="Folder searched for *.clf logs (with *.gt.txt references)."),
     config_file: Optional[Path] = typer.Option(None, "--config", help="YAML configuration (the same for every log)."),
     steps: Optional[int] = typer.Option(None, help="Only the first N scans of each log."),
+    mode: Optional[str] = typer.Option(None, help="slam or localization (default: the configuration's)."),
 ) -> None:
     """Accuracy and speed on every log of a data folder, one configuration for all."""
     from bsslam.bench import bench_log, find_logs
@@ -181,9 +181,14 @@ def bench(
     logs = find_logs(data)
     if not logs:
         fail(BsslamError(f"no *.clf logs under {data}"))
-    config = _load_config(config_file)
+    try:
+        config = _load_config(config_file)
+        if mode is not None:
+            config = config.replace(mode=mode)
+    except BsslamError as exc:
+        fail(exc)
     table = Table("log", "scans", "wall s", "ms/scan", "splines", "max state", "ATE m", "odometry ATE m",
-                  "relations (Intel)", title="bsslam bench")
+                  "front end ATE m", "relations (Intel)", title=f"bsslam bench ({config.mode})")
     for log in logs:
         try:
             with progress_bar(log.name, steps, "scans") as update:
@@ -192,7 +197,8 @@ def bench(
             console.print(f"[red]{log}: {exc}[/red]")
             continue
         table.add_row(row.log, str(row.scans), f"{row.wall_s:.1f}", f"{row.ms_per_scan:.1f}", str(row.splines),
-                      str(row.state_size), f"{row.ate_m:.3f}", f"{row.odometry_ate_m:.3f}", row.relations)
+                      str(row.state_size), f"{row.ate_m:.3f}", f"{row.odometry_ate_m:.3f}", f"{row.frontend_ate_m:.3f}",
+                      row.relations)
     Console(width=max(Console().width, 150)).print(table)
     console.print(f"peak memory (max RSS) of this process: {row.peak_rss_mb:.0f} MB")
 

@@ -56,6 +56,8 @@ def summarize(result: RunResult, reference: Trajectory | None = None, exact_refe
         summary["ate_matched_poses"] = int(matched)
         odo_rmse, _, _ = ate(result.odometry, ref)
         summary["odometry_ate_m"] = round(float(odo_rmse), 5)
+        if result.frontend is not None:
+            summary["frontend_ate_m"] = round(float(ate(result.frontend, ref)[0]), 5)
         if exact_reference and len(ref) == len(est):
             err = pose_errors(est, ref)
             summary["final_position_error_m"] = round(float(np.hypot(*err.errors[-1, :2])), 5)
@@ -74,6 +76,8 @@ def write_outputs(result: RunResult, run_dir: Path, config: SLAMConfig, *, walls
     run_dir = Path(run_dir)
     write_tum(run_dir / "trajectory.tum", result.estimate)
     write_tum(run_dir / "odometry.tum", result.odometry)
+    if result.frontend is not None:
+        write_tum(run_dir / "frontend.tum", result.frontend)
     if result.ground_truth is not None:
         write_tum(run_dir / "ground_truth.tum", result.ground_truth)
     write_pose_covariance_csv(run_dir / "pose_covariance.csv", result.estimate)

@@ -36,6 +36,8 @@ class RunResult:
         name: the dataset's name.
         estimate: estimated trajectory with per-step pose covariances (one pose per scan).
         odometry: the dead-reckoning trajectory at the same stamps.
+        frontend: the front end's own trajectory (its increments chained, no map), or None
+            when the front end is off.
         ground_truth: the dataset's reference, if it has one.
         map: the final map splines with their covariance blocks.
         wall_time_s: time spent in the filter (s), excluding reading the input.
@@ -50,6 +52,7 @@ class RunResult:
     name: str
     estimate: Trajectory
     odometry: Trajectory
+    frontend: Trajectory | None
     ground_truth: Trajectory | None
     map: list[MapSpline]
     wall_time_s: float
@@ -118,7 +121,7 @@ class _FrontendMotion:
 
 
 def _run(dataset, config, steps, progress, total, point_stride, slam) -> RunResult:
-    stamps, poses, covs, odo, step_times, sizes, nis, dof = [], [], [], [], [], [], [], []
+    stamps, poses, covs, odo, fe, step_times, sizes, nis, dof = [], [], [], [], [], [], [], [], []
     points = []
     totals: dict[str, int] = {}
     motion = _FrontendMotion(config.frontend) if config.frontend.enabled else _OdometryMotion()
@@ -140,6 +143,8 @@ def _run(dataset, config, steps, progress, total, point_stride, slam) -> RunResu
         poses.append(pose)
         covs.append(cov)
         odo.append(np.asarray(frame.odometry, dtype=float))
+        if isinstance(motion, _FrontendMotion):
+            fe.append(motion.odometry.pose.copy())
         sizes.append(slam.state_size)
         nis.append(report.nis if report else 0.0)
         dof.append(report.nis_dof if report else 0)
@@ -156,8 +161,9 @@ def _run(dataset, config, steps, progress, total, point_stride, slam) -> RunResu
     n = len(stamps)
     estimate = Trajectory(np.array(stamps), np.array(poses).reshape(n, 3), np.array(covs).reshape(n, 3, 3))
     odometry = Trajectory(np.array(stamps), np.array(odo).reshape(n, 3))
+    frontend = Trajectory(np.array(stamps), np.array(fe).reshape(n, 3)) if fe else None
     return RunResult(
-        name=getattr(dataset, "name", "dataset"), estimate=estimate, odometry=odometry,
+        name=getattr(dataset, "name", "dataset"), estimate=estimate, odometry=odometry, frontend=frontend,
         ground_truth=dataset.ground_truth, map=slam.map, wall_time_s=float(np.sum(step_times)),
         step_times_s=np.array(step_times), state_sizes=np.array(sizes, dtype=int), totals=totals,
         nis=np.array(nis), nis_dof=np.array(dof, dtype=int),
