@@ -44,7 +44,7 @@ BINS = [0, 250, 500, 750, 1000, 1250, 1500, 2000, 3000, 10**9]
 # call one another, so the stages do not overlap. "other" is the rest of step() (beam
 # grouping, row selection, bookkeeping).
 STAGES = {
-    "predict": [(SplineSLAM, "_predict")],
+    "predict": [(filter_module, "predict")],
     "segment+fit": [(SplineSLAM, "_observe")],
     "associate": [(SplineSLAM, "_associate")],
     "linearise": [(SplineSLAM, "_linearize")],
