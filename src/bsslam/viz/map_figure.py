@@ -59,6 +59,7 @@ def save_map_figure(
         plot_trajectory(ax, est_poses, "estimate", color="tab:blue", linewidth=1.0)
         if est_covariances is not None:
             plot_pose_ellipses(ax, est_poses, est_covariances)
+    _frame_map(ax, curves, walls, true_poses, est_poses)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
@@ -69,3 +70,18 @@ def save_map_figure(
         # Outside the axes: never hides the map, and "best" placement is slow with many points.
         fig.legend(handles, labels, loc="outside right upper", fontsize="small")
     return save_figure(fig, paths)
+
+
+def _frame_map(ax, curves, walls, true_poses, est_poses, margin: float = 0.05) -> None:
+    """Limit the axes to the map and the estimated and true paths: raw odometry on a real
+    log can drift tens of metres away and would shrink the map to a corner."""
+    parts = [np.asarray(w, dtype=float).reshape(-1, 2) for w in (walls or [])]
+    parts += [c.control_points for c in curves]
+    parts += [np.asarray(p, dtype=float)[:, :2] for p in (true_poses, est_poses) if p is not None and len(p)]
+    if not parts:
+        return
+    xy = np.vstack(parts)
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    pad = margin * max(float(np.max(hi - lo)), 1.0)
+    ax.set_xlim(lo[0] - pad, hi[0] + pad)
+    ax.set_ylim(lo[1] - pad, hi[1] + pad)
