@@ -38,7 +38,7 @@ from bsslam.spline.closest import _MAX_NEWTON as _CLOSEST_MAX_NEWTON
 from bsslam.spline.closest import _STEP_TOLERANCE as _CLOSEST_STEP_TOLERANCE
 from bsslam.spline.intersect import _MAX_NEWTON as _RAY_MAX_NEWTON
 from bsslam.spline.intersect import _ROOT_TOLERANCE_M, _STEP_TOLERANCE, RayHits
-from bsslam.spline.intersect import _horner, _horner_derivative, _refine_brackets
+from bsslam.spline.intersect import beam_frame_polynomials, nearest_crossings
 from bsslam.spline.pieces import horner_with_derivatives
 
 
@@ -380,40 +380,13 @@ def _ray_global_search(batch: CurveBatch, rays: _Rays, max_range: float, samples
     keep = straddles & reachable
     ray, piece = ray[keep], piece[keep]
 
-    coeffs = batch.coeffs[piece]
-    c, s = rays.cos[ray, None], rays.sin[ray, None]
-    cx = c * coeffs[:, :, 0] + s * coeffs[:, :, 1]
-    cy = c * coeffs[:, :, 1] - s * coeffs[:, :, 0]
-    cx[:, 0] -= rays.cos[ray] * rays.ox[ray] + rays.sin[ray] * rays.oy[ray]
-    cy[:, 0] -= rays.cos[ray] * rays.oy[ray] - rays.sin[ray] * rays.ox[ray]
+    cx, cy = beam_frame_polynomials(batch.coeffs[piece], rays.cos[ray], rays.sin[ray], rays.ox[ray], rays.oy[ray])
 
-    u = table.width[piece][:, None] * np.linspace(0.0, 1.0, samples_per_span + 1)
-    y = _horner(cy, u)
-    positive = y > 0
-    pair, j = np.nonzero(positive[:, :-1] != positive[:, 1:])
-    zero_pair, zero_j = np.nonzero(y == 0)
-    pair = np.concatenate([pair, zero_pair])
-    a = np.concatenate([u[pair[: j.size], j], u[zero_pair, zero_j]])
-    b = np.concatenate([u[pair[: j.size], j + 1], u[zero_pair, zero_j]])
-    root = _refine_brackets(cy[pair], a, b)
-
-    xt = _horner(cx[pair], root[:, None])[:, 0]
-    keep = (xt > 0) & (xt <= max_range)
-    pair, root, xt = pair[keep], root[keep], xt[keep]
-    owner = ray[pair]
-    order = np.lexsort((xt, owner))
-    _, first_of = np.unique(owner[order], return_index=True)
-    best = order[first_of]
-    hit_rays = owner[best]
-
-    ok = np.zeros(k, dtype=bool)
-    ok[hit_rays] = True
+    ok, hit_rays, best_pair, values = nearest_crossings(cx, cy, table.width[piece], ray, k,
+                                                        samples_per_span, max_range)
     t, rng, dxt, dyt = (np.full(k, np.nan) for _ in range(4))
-    best_pair = pair[best]
-    t[hit_rays] = table.piece_lo[piece[best_pair]] + root[best]
-    rng[hit_rays] = xt[best]
-    dxt[hit_rays] = _horner_derivative(cx[best_pair], root[best])
-    dyt[hit_rays] = _horner_derivative(cy[best_pair], root[best])
+    t[hit_rays] = table.piece_lo[piece[best_pair]] + values[0]
+    rng[hit_rays], dxt[hit_rays], dyt[hit_rays] = values[1:]
     return ok, (t, rng, dxt, dyt)
 
 

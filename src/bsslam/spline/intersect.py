@@ -187,14 +187,46 @@ def _global_search(curve: BSplineCurve, beams: _Beams, max_range: float, samples
     ray, piece = np.nonzero(straddles & reachable)
 
     # Beam-frame polynomial of each candidate (ray, span) pair, ascending powers of u.
-    coeffs = pieces.coeffs[piece]  # (K, degree+1, 2)
-    c, s = beams.cos[ray, None], beams.sin[ray, None]
+    cx, cy = beam_frame_polynomials(pieces.coeffs[piece], beams.cos[ray], beams.sin[ray],
+                                    beams.ox[ray], beams.oy[ray])
+
+    ok, rays, best_pair, values = nearest_crossings(cx, cy, pieces.widths[piece], ray, k,
+                                                    samples_per_span, max_range)
+    t, rng, dxt, dyt = (np.full(k, np.nan) for _ in range(4))
+    t[rays] = pieces.breaks[piece[best_pair]] + values[0]
+    rng[rays], dxt[rays], dyt[rays] = values[1:]
+    return _Found(ok, (t, rng, dxt, dyt))
+
+
+def beam_frame_polynomials(coeffs: np.ndarray, cos: np.ndarray, sin: np.ndarray, ox: np.ndarray,
+                           oy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World pieces (K, degree+1, 2) in ascending powers, moved into the frames of K beams
+    starting at (ox, oy) with direction (cos, sin): x̃ along each beam, ỹ across it (m)."""
+    c, s = cos[:, None], sin[:, None]
     cx = c * coeffs[:, :, 0] + s * coeffs[:, :, 1]
     cy = c * coeffs[:, :, 1] - s * coeffs[:, :, 0]
-    cx[:, 0] -= beams.cos[ray] * beams.ox[ray] + beams.sin[ray] * beams.oy[ray]
-    cy[:, 0] -= beams.cos[ray] * beams.oy[ray] - beams.sin[ray] * beams.ox[ray]
+    cx[:, 0] -= cos * ox + sin * oy
+    cy[:, 0] -= cos * oy - sin * ox
+    return cx, cy
 
-    width = pieces.widths[piece]
+
+def nearest_crossings(cx: np.ndarray, cy: np.ndarray, width: np.ndarray, ray: np.ndarray, k: int,
+                      samples_per_span: int, max_range: float):
+    """Each ray's nearest forward crossing among candidate (ray, piece) pairs.
+
+    Args:
+        cx, cy: (K, degree+1) ascending beam-frame polynomials of each pair's piece in the
+            local parameter u ∈ [0, width] (x along the beam, y across it; m).
+        width: (K,) parameter length of each pair's piece (m).
+        ray: (K,) ray of each pair, in 0 … k−1.
+        samples_per_span: sign-change samples per piece.
+        max_range: crossings beyond this range (m) are ignored.
+
+    Returns:
+        ok: (k,) the ray crosses some piece ahead of it; rays: (h,) those rays;
+        best_pair: (h,) the pair of each one's nearest crossing; values: (4, h) its local
+        parameter u, range, and dx̃/du, dỹ/du there.
+    """
     u = width[:, None] * np.linspace(0.0, 1.0, samples_per_span + 1)  # (K, samples+1)
     y = _horner(cy, u)
     positive = y > 0
@@ -214,19 +246,12 @@ def _global_search(curve: BSplineCurve, beams: _Beams, max_range: float, samples
     _, first = np.unique(owner[order], return_index=True)
     best = order[first]
     rays = owner[best]
-
     ok = np.zeros(k, dtype=bool)
     ok[rays] = True
-    t = np.full(k, np.nan)
-    rng = np.full(k, np.nan)
-    dxt = np.full(k, np.nan)
-    dyt = np.full(k, np.nan)
     best_pair = pair[best]
-    t[rays] = pieces.breaks[piece[best_pair]] + root[best]
-    rng[rays] = xt[best]
-    dxt[rays] = _horner_derivative(cx[best_pair], root[best])
-    dyt[rays] = _horner_derivative(cy[best_pair], root[best])
-    return _Found(ok, (t, rng, dxt, dyt))
+    values = np.stack([root[best], xt[best], _horner_derivative(cx[best_pair], root[best]),
+                       _horner_derivative(cy[best_pair], root[best])])
+    return ok, rays, best_pair, values
 
 
 def _horner(coeffs: np.ndarray, u: np.ndarray) -> np.ndarray:
