@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bsslam.slam.association import associate, control_point_gaps
+from bsslam.slam.association import associate, control_point_gaps, relative_sigma
 from bsslam.slam.observation import predict_beams, predict_beams_batch
 from bsslam.spline import BSplineCurve, closest_point, fit_curve
 from bsslam.spline.batch import curve_table
@@ -63,13 +63,17 @@ def test_predict_beams_batch_matches_each_curve(seed, degrees):
             np.testing.assert_allclose(dense_b, dense_o, rtol=1e-6, atol=1e-8)
 
 
-def _reference_associate(observed, mapped, ids, gate, delta):
-    """Fig. 6 pair by pair with the one-curve closest_point (the filter's former code)."""
+def _reference_associate(observed, mapped, ids, gates, deltas):
+    """Fig. 6 pair by pair with the one-curve closest_point (the filter's former code);
+    thresholds as numbers or (observed, mapped) matrices."""
     result = [[] for _ in observed]
-    for fid, m in zip(ids, mapped):
+    gates = np.broadcast_to(gates, (len(observed), len(mapped)))
+    deltas = np.broadcast_to(deltas, (len(observed), len(mapped)))
+    for j, (fid, m) in enumerate(zip(ids, mapped)):
         lo_m, hi_m = m.domain
         tol = 1e-6 * max(1.0, hi_m - lo_m)
         for i, o in enumerate(observed):
+            gate, delta = gates[i, j], deltas[i, j]
             a, b = o.bbox(), m.bbox()
             if b[0] - a[2] > gate or a[0] - b[2] > gate or b[1] - a[3] > gate or a[1] - b[3] > gate:
                 continue
@@ -90,9 +94,7 @@ def _reference_associate(observed, mapped, ids, gate, delta):
     return [sorted(r, key=lambda m: m[1]) for r in result]
 
 
-@pytest.mark.parametrize("seed", range(12))
-def test_associate_matches_pairwise_reference(seed):
-    rng = np.random.default_rng(seed)
+def _association_case(rng):
     mapped, observed = [], []
     for _ in range(3):
         wall = _wall(rng)
@@ -105,15 +107,92 @@ def test_associate_matches_pairwise_reference(seed):
             pts = wall[a:a + rng.integers(30, 100)] + rng.normal(0, 0.002, (1, 2))
             pts = pts[::-1] if rng.random() < 0.2 else pts   # some seen in the opposite direction
             observed.append(fit_curve(pts, 3, 0.3).curve)
-    ids = np.arange(10, 10 + len(mapped))
-    got = associate(_batch(observed), _batch(mapped), ids, np.arange(len(mapped)), 0.5, 0.1)
-    expected = _reference_associate(observed, mapped, ids, 0.5, 0.1)
-    assert sum(len(e) for e in expected) > 0
+    return observed, mapped, np.arange(10, 10 + len(mapped))
+
+
+def _assert_same_matches(got, expected):
     for g, e in zip(got, expected):
         assert [m.feature_id for m in g] == [r[0] for r in e]
         for m, r in zip(g, e):
             np.testing.assert_allclose([m.u_ini, m.u_fin, m.t_ini, m.t_fin], r[1:5], atol=1e-9)
             assert (m.at_lo, m.at_hi) == (r[5], r[6])
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_associate_matches_pairwise_reference(seed):
+    observed, mapped, ids = _association_case(np.random.default_rng(seed))
+    got = associate(_batch(observed), _batch(mapped), ids, np.arange(len(mapped)), 0.5, 0.1)
+    expected = _reference_associate(observed, mapped, ids, 0.5, 0.1)
+    assert sum(len(e) for e in expected) > 0
+    _assert_same_matches(got, expected)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_associate_per_pair_thresholds(seed):
+    """The filter gates each (observed, map) pair by its own relative uncertainty."""
+    rng = np.random.default_rng(100 + seed)
+    observed, mapped, ids = _association_case(rng)
+    everything = _reference_associate(observed, mapped, ids, 0.5, 0.1)
+    # loose thresholds everywhere but on the pairs of one observed spline's first match:
+    # tight there, so the pair-wise thresholds must remove exactly that match
+    i = next(i for i, e in enumerate(everything) if e)
+    j = int(np.flatnonzero(ids == everything[i][0][0])[0])
+    gates = np.full((len(observed), len(mapped)), 0.5)
+    deltas = np.full((len(observed), len(mapped)), 0.1)
+    if seed % 2:
+        gates[i, j] = 1e-4      # fails the control-point gate
+    else:
+        deltas[i, j] = 1e-4     # fails the end-point distance
+    got = associate(_batch(observed), _batch(mapped), ids, np.arange(len(mapped)), gates, deltas)
+    expected = _reference_associate(observed, mapped, ids, gates, deltas)
+    assert sum(len(e) for e in expected) == sum(len(e) for e in everything) - 1
+    _assert_same_matches(got, expected)
+
+
+def test_relative_sigma_is_the_offset_covariance():
+    """√trace of Cov(p(pose) − c) from the dense Jacobian of the offset over the whole
+    state, with the rigid-motion lever checked by finite differences; fixed control points
+    contribute nothing."""
+    rng = np.random.default_rng(7)
+    n = 3 + 2 * 6
+    A = rng.normal(size=(n, n))
+    P = A @ A.T / n + 0.01 * np.eye(n)
+    pose = np.array([1.0, -2.0, 0.4])
+    local = rng.uniform(-5, 5, (4, 2))
+
+    def world(p):
+        c, s = np.cos(p[2]), np.sin(p[2])
+        return local @ np.array([[c, s], [-s, c]]) + p[:2]
+
+    points = world(pose)
+    cp_rows = np.array([[3, 4], [9, 10], [-1, -1], [13, 14]])
+    got = relative_sigma(P, pose, points, cp_rows)
+    eps = 1e-6
+    for i in range(points.shape[0]):
+        J_pose = np.column_stack([(world(pose + eps * e)[i] - world(pose - eps * e)[i]) / (2 * eps) for e in np.eye(3)])
+        for j, rows in enumerate(cp_rows):
+            J = np.zeros((2, n))
+            J[:, :3] = J_pose
+            if rows[0] >= 0:
+                J[[0, 1], rows] = -1.0
+            assert got[i, j] == pytest.approx(np.sqrt(np.trace(J @ P @ J.T)), rel=1e-6)
+
+
+def test_relative_sigma_vanishes_for_a_point_mapped_from_the_same_pose():
+    """A wall mapped from the current pose (no noise) moves with the pose: however large the
+    pose uncertainty, the wall is exactly where the robot sees it."""
+    pose = np.array([3.0, 1.0, 0.7])
+    local = np.array([2.0, 1.5])
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    point = pose[:2] + np.array([[c, -s], [s, c]]) @ local
+    G = np.zeros((5, 3))
+    G[:3] = np.eye(3)
+    G[3:, :2] = np.eye(2)
+    G[3:, 2] = [-(point[1] - pose[1]), point[0] - pose[0]]
+    P = G @ np.diag([4.0, 9.0, 0.25]) @ G.T       # control point = g(pose): rank 3
+    sigma = relative_sigma(P, pose, point[None, :], np.array([[3, 4]]))
+    assert sigma[0, 0] == pytest.approx(0.0, abs=1e-6)
+    assert relative_sigma(P, pose, point[None, :], np.array([[-1, -1]]))[0, 0] > 1.0
 
 
 def test_control_point_gaps_brute_force():

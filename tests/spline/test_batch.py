@@ -12,6 +12,7 @@ from spline_cases import curves, wall_curves
 from bsslam.errors import SplineError
 from bsslam.spline import BSplineCurve, basis_functions, clamped_knots, closest_point, intersect_rays
 from bsslam.spline.batch import closest_points_batch, curve_table, intersect_rays_batch
+from bsslam.spline.knots import clamped_knots_with_spans
 
 SETTINGS = settings(max_examples=40, deadline=None)
 # Beams within this of the tangent are grazing (the filter drops them): there the global
@@ -136,3 +137,18 @@ def test_bad_inputs_raise():
         intersect_rays_batch(batch, np.zeros(2, dtype=int), np.zeros(2), np.zeros(3))
     with pytest.raises(SplineError):
         closest_points_batch(batch, np.zeros(1, dtype=int), np.zeros((2, 2)))
+
+
+def test_extreme_control_points_brute_force():
+    rng = np.random.default_rng(11)
+    cs = [BSplineCurve(rng.uniform(-4, 4, (k, 2)), clamped_knots_with_spans(1.0, k - d, d), d)
+          for k, d in ((3, 2), (6, 3), (5, 4), (8, 1))]
+    batch = _batch(cs)
+    point = np.array([0.5, -0.3])
+    curves = np.array([3, 0, 2])
+    for farthest in (False, True):
+        rows = batch.table.extreme_control_points(batch.control_points, curves, point, farthest=farthest)
+        for c, r in zip(curves, rows):
+            d = np.linalg.norm(cs[c].control_points - point, axis=1)
+            best = np.argmax(d) if farthest else np.argmin(d)
+            assert r == batch.table.cp_start[c] + best

@@ -66,10 +66,46 @@ def control_point_gaps(a: CurveBatch, b: CurveBatch, ia: np.ndarray, ib: np.ndar
     return np.sqrt(np.minimum.reduceat(d2, np.cumsum(na * nb) - na * nb))
 
 
+def relative_sigma(P: np.ndarray, pose: np.ndarray, points: np.ndarray, cp_rows: np.ndarray) -> np.ndarray:
+    """(k, F) σ (m) of the offset between k points seen from the robot and F map control
+    points, for gating: √trace of its 2×2 covariance.
+
+    A point seen from the robot moves with the pose, J = ∂p/∂(x, y, φ); a control point is
+    its own state entries. The offset's covariance J P_pp Jᵀ − J P_pc − P_cp Jᵀ + P_cc keeps
+    the cross terms, so a wall mapped from the recent, equally drifted poses is close to the
+    robot in this measure, however far both are from where the filter started.
+
+    Args:
+        P: the joint covariance (at least the pose block and the rows in ``cp_rows``).
+        pose: (3,) robot pose (m, m, rad).
+        points: (k, 2) world points that move rigidly with the pose (m).
+        cp_rows: (F, 2) state rows of the control points' x and y; −1 for fixed points.
+    """
+    lever = points - pose[:2]
+    k = points.shape[0]
+    J = np.zeros((k, 2, 3))
+    J[:, 0, 0] = J[:, 1, 1] = 1.0
+    J[:, 0, 2], J[:, 1, 2] = -lever[:, 1], lever[:, 0]
+    own = np.einsum("kab,bc,kac->k", J, P[:3, :3], J)
+    fixed = cp_rows[:, 0] < 0
+    rows = np.maximum(cp_rows, 0)
+    cross = np.einsum("kab,bfa->kf", J, P[:3][:, rows])                    # tr(J P_pc)
+    map_var = P[rows[:, 0], rows[:, 0]] + P[rows[:, 1], rows[:, 1]]
+    cross[:, fixed] = 0.0
+    map_var[fixed] = 0.0
+    return np.sqrt(np.maximum(own[:, None] - 2.0 * cross + map_var[None, :], 0.0))
+
+
 def _at_end(t: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Whether parameters t are at the lower / upper end of domains [lo, hi] (same shapes)."""
     tol = 1e-6 * np.maximum(1.0, hi - lo)
     return t <= lo + tol, t >= hi - tol
+
+
+def _per_pair(value, k: int, f: int) -> np.ndarray:
+    """A threshold given as one value, (k,) per observed spline or (k, f) per pair, as (k, f)."""
+    a = np.asarray(value, dtype=float)
+    return np.broadcast_to(a[:, None] if a.ndim == 1 else a, (k, f))
 
 
 def associate(observed: CurveBatch, mapped: CurveBatch, feature_ids: np.ndarray, candidates: np.ndarray,
@@ -81,8 +117,9 @@ def associate(observed: CurveBatch, mapped: CurveBatch, feature_ids: np.ndarray,
         mapped: the map splines (world frame).
         feature_ids: (C,) feature id of each curve of ``mapped``.
         candidates: indices of the curves of ``mapped`` to try (the robot's surroundings).
-        gate_m: δ_mincp, the cheap control-point gate (m): one value, or (k,).
-        match_distance_m: δ_match (m): one value, or (k,).
+        gate_m: δ_mincp, the cheap control-point gate (m): one value, (k,) one per observed
+            spline, or (k, len(candidates)) one per pair.
+        match_distance_m: δ_match (m): shaped like ``gate_m``.
     Returns:
         for each observed spline, its matches sorted by ``u_ini``.
     """
@@ -91,18 +128,18 @@ def associate(observed: CurveBatch, mapped: CurveBatch, feature_ids: np.ndarray,
     candidates = np.asarray(candidates, dtype=np.intp)
     if k == 0 or candidates.size == 0:
         return result
-    gates = np.broadcast_to(np.asarray(gate_m, dtype=float), (k,))
-    deltas = np.broadcast_to(np.asarray(match_distance_m, dtype=float), (k,))
+    gates = _per_pair(gate_m, k, candidates.size)
+    deltas = _per_pair(match_distance_m, k, candidates.size)
     ob = observed.bboxes()[:, None, :]                       # (k, 1, 4)
     mb = mapped.bboxes()[candidates][None, :, :]             # (1, F, 4)
-    g = gates[:, None]
+    g = gates
     # bounding boxes farther apart than the gate cannot pass it; then the control points
     near = ~((mb[..., 0] - ob[..., 2] > g) | (ob[..., 0] - mb[..., 2] > g) |
              (mb[..., 1] - ob[..., 3] > g) | (ob[..., 1] - mb[..., 3] > g))
     io, jf = np.nonzero(near)                                # pairs, observed-major
     im = candidates[jf]
     if io.size:
-        close = control_point_gaps(observed, mapped, io, im) <= gates[io]
+        close = control_point_gaps(observed, mapped, io, im) <= gates[io, jf]
         io, jf, im = io[close], jf[close], im[close]
     if io.size == 0:
         return result
@@ -124,7 +161,7 @@ def associate(observed: CurveBatch, mapped: CurveBatch, feature_ids: np.ndarray,
     ordered = (t_ends[:, 1] > t_ends[:, 0]) & (u_ends[:, 1] > u_ends[:, 0])
     gap = observed.evaluate(obs2, u_ends.ravel())[0] - mapped.evaluate(map2, t_ends.ravel())[0]
     gap = np.hypot(gap[:, 0], gap[:, 1]).reshape(-1, 2).max(axis=1)
-    accepted = np.flatnonzero(ordered & (gap <= deltas[io]))
+    accepted = np.flatnonzero(ordered & (gap <= deltas[io, jf]))
     for p in accepted:  # one Match per accepted pair (a handful per scan)
         result[io[p]].append(Match(int(feature_ids[im[p]]), float(u_ends[p, 0]), float(u_ends[p, 1]),
                                    float(t_ends[p, 0]), float(t_ends[p, 1]),

@@ -16,7 +16,7 @@ from bsslam.config import SLAMConfig
 from bsslam.errors import FilterError, FitError, InputError
 from bsslam.scan import LaserScan, ObservedSpline, extract_splines
 from bsslam.scan.refine import refine_for_map
-from bsslam.slam.association import Match, associate
+from bsslam.slam.association import Match, associate, relative_sigma
 from bsslam.slam.ekf import CovarianceColumns, StackedGain, Workspace, gate_threshold, innovation_variances
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
 from bsslam.slam.features import MapSpline, SplineFeature
@@ -231,12 +231,16 @@ class SplineSLAM:
         local = np.vstack([o.curve.control_points for o in observed])      # robot (laser) frame
         c, s = np.cos(lp[2]), np.sin(lp[2])
         world = table.with_control_points(local @ np.array([[c, s], [-s, c]]) + lp[:2])
-        # Grow both thresholds by the predicted uncertainty of each observed spline's far end.
-        P = self.state.P
-        ends = np.hypot(local[:, 0], local[:, 1])
-        reach = np.maximum(ends[table.cp_start[:-1]], ends[table.cp_start[1:] - 1])
-        sigma_end = np.sqrt(P[0, 0] + P[1, 1] + reach ** 2 * P[2, 2])
-        grow = cfg.uncertainty_sigmas * sigma_end
+        # Grow both thresholds by the uncertainty of each observed spline's far end
+        # relative to each candidate map spline: what the filter does not know about where
+        # that wall is *as seen from the robot*. The robot's absolute uncertainty is the
+        # wrong measure after a long drift: walls mapped a few metres back carry the same
+        # error, and gates grown by it all reach their 1 m cap in the ACES corridors.
+        far = world.control_points[table.extreme_control_points(
+            world.control_points, np.arange(table.n_curves), lp[:2], farthest=True)]  # (k, 2)
+        near = mc.state_rows[mc.table.extreme_control_points(cp, candidates, lp[:2])]  # (F, 2)
+        sigma = relative_sigma(self.state.P, self.state.pose, far, near)
+        grow = cfg.uncertainty_sigmas * sigma                                   # (k, F)
         delta = np.minimum(cfg.match_distance_m + grow, cfg.max_match_distance_m)
         gate = cfg.control_point_gate_factor * self.config.spline.knot_spacing_m + grow
         maps = mc.table.with_control_points(cp, candidates)
