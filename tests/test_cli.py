@@ -104,7 +104,13 @@ def test_run_on_the_first_150_intel_scans(tmp_path):
            "--reference", DATA / "intel" / "intel-rawodom.gt.txt")
     run = (out / "latest").resolve()
     summary = check_run_folder(run, 150)
-    assert "ate_m" in summary and "frontend_ate_m" in summary
+    assert "ate_m" in summary and "frontend_ate_m" in summary and "online_ate_m" in summary
+    # the online filter's trajectory beside the relocalised one, with its joint covariances
+    online = read_trajectory(run / "trajectory_online.tum")
+    stamps, covs = read_pose_covariance_csv(run / "pose_covariance_online.csv")
+    np.testing.assert_array_equal(online.stamps, read_trajectory(run / "trajectory.tum").stamps)
+    np.testing.assert_array_equal(stamps, online.stamps)
+    assert np.all(np.linalg.eigvalsh(covs[1:]) > 0)
     # the front end's own trajectory, one pose per scan at the same stamps
     np.testing.assert_array_equal(read_trajectory(run / "frontend.tum").stamps,
                                   read_trajectory(run / "trajectory.tum").stamps)

@@ -31,6 +31,7 @@ class BenchRow:
     splines: int
     state_size: int
     ate_m: float
+    online_ate_m: float
     odometry_ate_m: float
     frontend_ate_m: float
     relations: str
@@ -42,27 +43,31 @@ def find_logs(data_dir: Path) -> list[Path]:
     return sorted(Path(data_dir).glob("**/*.clf"))
 
 
-def bench_log(log: Path, config: SLAMConfig, steps: int | None = None, progress=None) -> BenchRow:
+def bench_log(log: Path, config: SLAMConfig, steps: int | None = None, progress=None,
+              relocalize_progress=None) -> BenchRow:
     """Run one log and score it against ``<log>.gt.txt`` (and ``intel.relations`` for Intel)."""
     data = open_dataset(log)
     t0 = time.perf_counter()
-    result = run_dataset(data, config, steps=steps, progress=progress or (lambda d, t: None), point_stride=0)
+    quiet = lambda done, total: None  # noqa: E731
+    result = run_dataset(data, config, steps=steps, progress=progress or quiet, point_stride=0,
+                         relocalize_progress=relocalize_progress or quiet)
     wall = time.perf_counter() - t0
     ref_path = log.with_suffix(".gt.txt")
     nan = float("nan")
-    ate_m = odo_m = fe_m = nan
+    ate_m = online_m = odo_m = fe_m = nan
     if ref_path.exists():
         ref = read_trajectory(ref_path)
-        ate_m = ate(result.estimate, ref)[0]
+        ate_m = ate(result.trajectory, ref)[0]
+        online_m = ate(result.estimate, ref)[0]
         odo_m = ate(result.odometry, ref)[0]
         if result.frontend is not None:
             fe_m = ate(result.frontend, ref)[0]
     rel = "-"
     rel_path = log.parent / "intel.relations"
     if log.name.startswith("intel") and rel_path.exists():
-        r = relations_error(result.estimate, rel_path, offset=INTEL_RELATIONS_OFFSET_S)
+        r = relations_error(result.trajectory, rel_path, offset=INTEL_RELATIONS_OFFSET_S)
         if r.used:
             rel = f"{r.trans_mean_m:.3f}±{r.trans_std_m:.3f} m, {r.rot_mean_deg:.2f}±{r.rot_std_deg:.2f}° ({r.used})"
     return BenchRow(log.name, result.steps, wall, 1000.0 * result.wall_time_s / max(result.steps, 1),
-                    len(result.map), int(result.state_sizes.max()) if result.steps else 3, ate_m, odo_m, fe_m, rel,
+                    len(result.map), int(result.state_sizes.max()) if result.steps else 3, ate_m, online_m, odo_m, fe_m, rel,
                     resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)

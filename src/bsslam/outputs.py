@@ -33,14 +33,19 @@ def sample_curves(curves, step_m: float = 0.02) -> list[np.ndarray]:
 
 def summarize(result: RunResult, reference: Trajectory | None = None, exact_reference: bool = False) -> dict:
     """The summary.json contents. ``reference`` (or the dataset's ground truth) adds ATE;
-    an exact reference (simulation) also adds the final error and the mean pose NEES."""
-    est = result.estimate
+    an exact reference (simulation) also adds the final error and the mean pose NEES.
+
+    ATE is that of the reported trajectory (relocalised when the run has a second pass),
+    with the online filter's beside it; NEES is the online filter's, whose covariances are
+    the joint ones (the second pass's are relative to the map)."""
+    est = result.trajectory
     ref = reference if reference is not None else result.ground_truth
     n_cp = sum(m.curve.n_control for m in result.map)
     summary = {
         "name": result.name,
         "scans": result.steps,
         "wall_time_s": round(result.wall_time_s, 3),
+        "relocalize_time_s": round(result.relocalize_time_s, 3),
         "ms_per_step": round(1000.0 * result.wall_time_s / max(result.steps, 1), 3),
         "splines": len(result.map),
         "control_points": int(n_cp),
@@ -54,12 +59,14 @@ def summarize(result: RunResult, reference: Trajectory | None = None, exact_refe
         rmse, matched, _ = ate(est, ref)
         summary["ate_m"] = round(float(rmse), 5)
         summary["ate_matched_poses"] = int(matched)
+        if result.relocalized is not None:
+            summary["online_ate_m"] = round(float(ate(result.estimate, ref)[0]), 5)
         odo_rmse, _, _ = ate(result.odometry, ref)
         summary["odometry_ate_m"] = round(float(odo_rmse), 5)
         if result.frontend is not None:
             summary["frontend_ate_m"] = round(float(ate(result.frontend, ref)[0]), 5)
         if exact_reference and len(ref) == len(est):
-            err = pose_errors(est, ref)
+            err = pose_errors(result.estimate, ref)
             summary["final_position_error_m"] = round(float(np.hypot(*err.errors[-1, :2])), 5)
             summary["final_heading_error_rad"] = round(float(err.errors[-1, 2]), 6)
             # step 0 has zero covariance (it defines the map frame): NaN, left out
@@ -74,13 +81,16 @@ def write_outputs(result: RunResult, run_dir: Path, config: SLAMConfig, *, walls
     from bsslam.viz import save_map_figure
 
     run_dir = Path(run_dir)
-    write_tum(run_dir / "trajectory.tum", result.estimate)
+    write_tum(run_dir / "trajectory.tum", result.trajectory)
+    write_pose_covariance_csv(run_dir / "pose_covariance.csv", result.trajectory)
+    if result.relocalized is not None:
+        write_tum(run_dir / "trajectory_online.tum", result.estimate)
+        write_pose_covariance_csv(run_dir / "pose_covariance_online.csv", result.estimate)
     write_tum(run_dir / "odometry.tum", result.odometry)
     if result.frontend is not None:
         write_tum(run_dir / "frontend.tum", result.frontend)
     if result.ground_truth is not None:
         write_tum(run_dir / "ground_truth.tum", result.ground_truth)
-    write_pose_covariance_csv(run_dir / "pose_covariance.csv", result.estimate)
     write_map_json(run_dir / "map.json", result.map)
     write_config(run_dir / "config.yaml", config)
     curves = [m.curve for m in result.map]
@@ -90,8 +100,8 @@ def write_outputs(result: RunResult, run_dir: Path, config: SLAMConfig, *, walls
     ref = reference if reference is not None else result.ground_truth
     save_map_figure(
         [run_dir / "map.png", run_dir / "map.svg"], walls=walls, curves=curves,
-        true_poses=None if ref is None else ref.poses, est_poses=result.estimate.poses,
-        est_covariances=result.estimate.covariances, odom_poses=result.odometry.poses,
+        true_poses=None if ref is None else ref.poses, est_poses=result.trajectory.poses,
+        est_covariances=result.trajectory.covariances, odom_poses=result.odometry.poses,
         points=result.points if len(result.points) else None, title=title or result.name,
     )
     summary = summarize(result, reference, exact_reference)

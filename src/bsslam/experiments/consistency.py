@@ -44,10 +44,12 @@ def variant_config(variant: str, base: SLAMConfig | None = None) -> SLAMConfig:
 
 def simulation_config(config: SLAMConfig, sim: SimConfig | None = None) -> SLAMConfig:
     """The filter configuration matched to a simulator's true noise (range σ, odometry),
-    fed the simulated odometry directly (no scan-matching front end): the experiments test
-    the paper's filter against the odometry model they simulate."""
+    fed the simulated odometry directly (no scan-matching front end) and reporting the
+    online estimate (no second pass): the experiments test the paper's filter against the
+    odometry model they simulate."""
     sim = sim or SimConfig()
     return config.replace(
+        relocalize=False,
         motion=sim.motion,
         frontend=dataclasses.replace(config.frontend, enabled=False),
         observation=dataclasses.replace(config.observation, sigma_range_m=sim.sigma_range_m),

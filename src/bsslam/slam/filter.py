@@ -127,6 +127,27 @@ class SplineSLAM:
         self._workspace = Workspace()        # scratch of the covariance update
         self._gate = gate_threshold(self.config.observation.gate_probability)
         self._loose_gate = gate_threshold(1.0 - (1.0 - self.config.observation.gate_probability) / 100.0)
+        self._build_map = True
+
+    @classmethod
+    def in_fixed_map(cls, splines: list[MapSpline], config: SLAMConfig | None = None,
+                     initial_pose=(0.0, 0.0, 0.0), initial_covariance: np.ndarray | None = None) -> "SplineSLAM":
+        """A filter that localises in a given map and never changes it: the splines'
+        control points are fixed (zero uncertainty, as in localisation mode) and no spline is
+        added, extended or removed; the state is the pose alone.
+
+        Args:
+            splines: the map (world frame), e.g. another run's :attr:`map`.
+        """
+        config = (config or SLAMConfig()).replace(mode="localization")
+        slam = cls(config, initial_pose, initial_covariance)
+        for spline in splines:
+            c = spline.curve
+            feature = SplineFeature(slam._new_id(), c.degree, c.knots.copy(),
+                                    fixed_control_points=np.array(c.control_points, dtype=float))
+            slam.features[feature.id] = feature
+        slam._build_map = False
+        return slam
 
     # -- public views -------------------------------------------------------------------
     @property
@@ -192,8 +213,9 @@ class SplineSLAM:
         matches = self._associate(observed, offset)
         self._update(observed, matches, offset, report)
         self._reassociate(observed, matches, offset, report)
-        self._enlarge(observed, matches, offset, report)
-        report.pruned_splines = self._prune()
+        if self._build_map:
+            self._enlarge(observed, matches, offset, report)
+            report.pruned_splines = self._prune()
         self.steps += 1
         report.state_size = self.state.size
         return report
