@@ -149,6 +149,17 @@ def test_associate_per_pair_thresholds(seed):
     _assert_same_matches(got, expected)
 
 
+def _relative_sigma_dense(P, pose, points, cp_rows):
+    """relative_sigma with its covariance pieces cut from a dense P (−1 rows: fixed)."""
+    fixed = cp_rows[:, 0] < 0
+    rows = np.maximum(cp_rows, 0)
+    cross = P[:3][:, rows].copy()                                   # (3, F, 2)
+    map_var = P[rows[:, 0], rows[:, 0]] + P[rows[:, 1], rows[:, 1]]
+    cross[:, fixed] = 0.0
+    map_var[fixed] = 0.0
+    return relative_sigma(pose, P[:3, :3], points, cross, map_var)
+
+
 def test_relative_sigma_is_the_offset_covariance():
     """√trace of Cov(p(pose) − c) from the dense Jacobian of the offset over the whole
     state, with the rigid-motion lever checked by finite differences; fixed control points
@@ -166,7 +177,7 @@ def test_relative_sigma_is_the_offset_covariance():
 
     points = world(pose)
     cp_rows = np.array([[3, 4], [9, 10], [-1, -1], [13, 14]])
-    got = relative_sigma(P, pose, points, cp_rows)
+    got = _relative_sigma_dense(P, pose, points, cp_rows)
     eps = 1e-6
     for i in range(points.shape[0]):
         J_pose = np.column_stack([(world(pose + eps * e)[i] - world(pose - eps * e)[i]) / (2 * eps) for e in np.eye(3)])
@@ -190,9 +201,9 @@ def test_relative_sigma_vanishes_for_a_point_mapped_from_the_same_pose():
     G[3:, :2] = np.eye(2)
     G[3:, 2] = [-(point[1] - pose[1]), point[0] - pose[0]]
     P = G @ np.diag([4.0, 9.0, 0.25]) @ G.T       # control point = g(pose): rank 3
-    sigma = relative_sigma(P, pose, point[None, :], np.array([[3, 4]]))
+    sigma = _relative_sigma_dense(P, pose, point[None, :], np.array([[3, 4]]))
     assert sigma[0, 0] == pytest.approx(0.0, abs=1e-6)
-    assert relative_sigma(P, pose, point[None, :], np.array([[-1, -1]]))[0, 0] > 1.0
+    assert _relative_sigma_dense(P, pose, point[None, :], np.array([[-1, -1]]))[0, 0] > 1.0
 
 
 def test_control_point_gaps_brute_force():

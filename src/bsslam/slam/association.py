@@ -66,7 +66,8 @@ def control_point_gaps(a: CurveBatch, b: CurveBatch, ia: np.ndarray, ib: np.ndar
     return np.sqrt(np.minimum.reduceat(d2, np.cumsum(na * nb) - na * nb))
 
 
-def relative_sigma(P: np.ndarray, pose: np.ndarray, points: np.ndarray, cp_rows: np.ndarray) -> np.ndarray:
+def relative_sigma(pose: np.ndarray, pose_covariance: np.ndarray, points: np.ndarray, cross: np.ndarray,
+                   map_variance: np.ndarray) -> np.ndarray:
     """(k, F) σ (m) of the offset between k points seen from the robot and F map control
     points, for gating: √trace of its 2×2 covariance.
 
@@ -76,24 +77,20 @@ def relative_sigma(P: np.ndarray, pose: np.ndarray, points: np.ndarray, cp_rows:
     robot in this measure, however far both are from where the filter started.
 
     Args:
-        P: the joint covariance (at least the pose block and the rows in ``cp_rows``).
-        pose: (3,) robot pose (m, m, rad).
+        pose: (3,) robot pose (m, m, rad); pose_covariance: (3, 3) P_pp.
         points: (k, 2) world points that move rigidly with the pose (m).
-        cp_rows: (F, 2) state rows of the control points' x and y; −1 for fixed points.
+        cross: (3, F, 2) P_pc, the pose's covariance with each control point's x and y
+            (zeros for a fixed point).
+        map_variance: (F,) trace of each control point's 2×2 block P_cc (m²; 0 if fixed).
     """
     lever = points - pose[:2]
     k = points.shape[0]
     J = np.zeros((k, 2, 3))
     J[:, 0, 0] = J[:, 1, 1] = 1.0
     J[:, 0, 2], J[:, 1, 2] = -lever[:, 1], lever[:, 0]
-    own = np.einsum("kab,bc,kac->k", J, P[:3, :3], J)
-    fixed = cp_rows[:, 0] < 0
-    rows = np.maximum(cp_rows, 0)
-    cross = np.einsum("kab,bfa->kf", J, P[:3][:, rows])                    # tr(J P_pc)
-    map_var = P[rows[:, 0], rows[:, 0]] + P[rows[:, 1], rows[:, 1]]
-    cross[:, fixed] = 0.0
-    map_var[fixed] = 0.0
-    return np.sqrt(np.maximum(own[:, None] - 2.0 * cross + map_var[None, :], 0.0))
+    own = np.einsum("kab,bc,kac->k", J, pose_covariance, J)
+    coupled = np.einsum("kab,bfa->kf", J, cross)                          # tr(J P_pc)
+    return np.sqrt(np.maximum(own[:, None] - 2.0 * coupled + map_variance[None, :], 0.0))
 
 
 def _at_end(t: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

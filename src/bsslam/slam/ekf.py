@@ -3,10 +3,11 @@
 ``H`` is non-zero only in the pose columns and the columns of the observed control points,
 so everything is built from those columns (``cols``): ``P Hᵀ = P[:, cols] H_cᵀ``. The
 covariance correction ``P ← P − P Hᵀ S⁻¹ H P`` is applied as a symmetric low-rank update
-``P ← P − Z Zᵀ`` with rank min(beams, touched columns): that product is the only O(n²)
-work of a scan. The Joseph form would cost O(n³) on the full state; instead the result is
-exactly symmetric (``Z @ Z.T`` is a symmetric rank-k product) and its pose block is
-checked; the tests check symmetry and positive definiteness on every simulated run.
+``P ← P − Z Zᵀ`` with rank min(beams, touched columns), which :class:`JointState` defers
+and folds in several at a time: that is the only O(n²) work of a scan. The Joseph form
+would cost O(n³) on the full state; instead the result is exactly symmetric (the fold
+writes both triangles from the same products) and its pose block is checked; the tests
+check symmetry and positive definiteness on every simulated run.
 """
 
 from __future__ import annotations
@@ -24,11 +25,11 @@ def gate_threshold(probability: float) -> float:
     return float(chi2.ppf(probability, 1))
 
 
-def innovation_variances(P: np.ndarray, cols: np.ndarray, H_c: np.ndarray, range_variance: float,
-                         P_cc: np.ndarray | None = None) -> np.ndarray:
-    """(m,) diagonal of S = H P Hᵀ + R, for per-beam gating (m²); ``P_cc`` is
-    ``P[cols][:, cols]`` when the caller has it already."""
-    HP = H_c @ (P[np.ix_(cols, cols)] if P_cc is None else P_cc)
+def innovation_variances(P: np.ndarray | CovarianceColumns, cols: np.ndarray, H_c: np.ndarray,
+                         range_variance: float) -> np.ndarray:
+    """(m,) diagonal of S = H P Hᵀ + R, for per-beam gating (m²); ``P`` is the (n, n)
+    covariance or its :class:`CovarianceColumns`."""
+    HP = H_c @ (P.block(cols) if isinstance(P, CovarianceColumns) else P[np.ix_(cols, cols)])
     return np.einsum("ij,ij->i", HP, H_c) + range_variance
 
 
@@ -39,13 +40,16 @@ class CovarianceColumns:
     them is served from that (n, C) block, which is far faster to index than P.
 
     Args:
-        P: (n, n) covariance; must not change while this object is used.
+        source: the (n, n) covariance, or a :class:`JointState` (its columns are then
+            gathered without folding its pending update); must not change while this
+            object is used.
     """
 
-    def __init__(self, P: np.ndarray):
-        self.P = P
+    def __init__(self, source: np.ndarray | JointState):
+        self._gather = source.columns if isinstance(source, JointState) else (lambda cols: source[:, cols])
+        n = source.size if isinstance(source, JointState) else source.shape[0]
         self._cols = np.empty(0, dtype=np.intp)     # sorted
-        self._P_c = np.empty((P.shape[0], 0))
+        self._P_c = np.empty((n, 0))
         self._last: tuple[np.ndarray, np.ndarray] | None = None
 
     def get(self, cols: np.ndarray) -> np.ndarray:
@@ -57,7 +61,7 @@ class CovarianceColumns:
         if self._cols.shape[0] and np.array_equal(self._cols[pos_ok], cols):
             out = self._P_c[:, pos]
         else:
-            out = self.P[:, cols]
+            out = self._gather(cols)
             self._cols, first = np.unique(np.concatenate([self._cols, cols]), return_index=True)
             # the union, taken from what is gathered already where possible
             both = np.concatenate([self._P_c, out], axis=1)
@@ -75,17 +79,17 @@ class StackedGain:
     correction ``P Hᵀ S⁻¹ ν`` for any ν (the iterated EKF reuses it) and the covariance update.
 
     Args:
-        P: (n, n) prior covariance.
+        P: (n, n) prior covariance, or its :class:`CovarianceColumns`.
         cols: (c,) state indices that ``H`` touches.
         H_c: (m, c) the Jacobian restricted to ``cols``.
         range_variance: R of one beam (m²).
-        P_c: optional (n, c) ``P[:, cols]`` when the caller has it already (read only).
     """
 
-    def __init__(self, P: np.ndarray, cols: np.ndarray, H_c: np.ndarray, range_variance: float,
-                 P_c: np.ndarray | None = None):
+    def __init__(self, P: np.ndarray | CovarianceColumns, cols: np.ndarray, H_c: np.ndarray,
+                 range_variance: float):
         self.cols = cols
-        self.P_c = P[:, cols] if P_c is None else P_c   # (n, c): the only columns of P read
+        # (n, c): the only columns of P read (read only)
+        self.P_c = P.get(cols) if isinstance(P, CovarianceColumns) else P[:, cols]
         S = (H_c @ self.P_c[cols]) @ H_c.T
         S[np.diag_indices_from(S)] += range_variance
         self.S_diag = np.diag(S).copy()
@@ -101,33 +105,29 @@ class StackedGain:
         w = _lower_solve(self.L, innovation)
         return self.P_c @ (self.Y.T @ w), float(w @ w)
 
-    def posterior_variances(self, P: np.ndarray, cols: np.ndarray, H_c: np.ndarray,
+    def posterior_variances(self, P: np.ndarray | CovarianceColumns, cols: np.ndarray, H_c: np.ndarray,
                             range_variance: float) -> np.ndarray:
         """(m,) variances H P⁺ Hᵀ + R of beams linearised on ``cols`` under the posterior
-        P⁺ = P − P Hᵀ S⁻¹ H P of this gain, without forming P⁺ beyond those columns."""
-        Z = P[np.ix_(cols, self.cols)] @ self.Y.T
-        P_post = P[np.ix_(cols, cols)] - Z @ Z.T
+        P⁺ = P − P Hᵀ S⁻¹ H P of this gain, without forming P⁺ beyond those columns.
+        ``P`` is the prior (n, n) or its :class:`CovarianceColumns`."""
+        if isinstance(P, CovarianceColumns):
+            P_cg, P_cc = P.get(self.cols)[cols], P.block(cols)
+        else:
+            P_cg, P_cc = P[np.ix_(cols, self.cols)], P[np.ix_(cols, cols)]
+        Z = P_cg @ self.Y.T
+        P_post = P_cc - Z @ Z.T
         return np.einsum("ij,ij->i", H_c @ P_post, H_c) + range_variance
 
-    def update_covariance(self, state: JointState, workspace: Workspace | None = None) -> None:
-        """P ← P − P Hᵀ S⁻¹ H P, as P − Z Zᵀ with the smaller of the two possible ranks.
-
-        ``workspace`` holds the n × n product between calls: a fresh 8 MB temporary at
-        n = 1000 costs as much in page faults as the subtraction itself.
-        """
+    def update_covariance(self, state: JointState) -> None:
+        """P ← P − P Hᵀ S⁻¹ H P, as P − Z Zᵀ with the smaller of the two possible ranks,
+        handed to ``state`` (which defers it, see :class:`JointState`)."""
         Y = self.Y
         if Y.shape[0] > Y.shape[1]:
             qr_, _, _, _ = dgeqrf(Y)                   # YᵀY = R_yᵀ R_y
             Y = np.triu(qr_[: Y.shape[1]])
-        Z = self.P_c @ Y.T
-        P = state.P
-        n = P.shape[0]
-        W = np.empty((n, n)) if workspace is None else workspace.matrix(n)
-        # numpy computes Z @ Z.T with syrk: exactly symmetric, so P stays symmetric
-        np.matmul(Z, Z.T, out=W)
-        np.subtract(P, W, out=P)
+        state.subtract_low_rank(self.P_c @ Y.T)
         # exactly known components (zero variance, e.g. a fixed start) stay 0; negative is broken
-        if np.any(np.diag(P)[:3] < -1e-12):
+        if np.any(np.diag(state.pose_covariance) < -1e-12):
             raise FilterError("pose covariance lost positive definiteness in the update")
 
 
@@ -137,16 +137,3 @@ def _lower_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
     if info != 0:  # pragma: no cover - L has a positive diagonal
         raise FilterError(f"triangular solve failed (trtrs info {info})")
     return x
-
-
-class Workspace:
-    """Scratch memory reused across updates (one per filter: not shared between threads)."""
-
-    def __init__(self):
-        self._buffer = np.empty(0)
-
-    def matrix(self, n: int) -> np.ndarray:
-        """A contiguous (n, n) scratch array (contents undefined)."""
-        if self._buffer.shape[0] < n * n:
-            self._buffer = np.empty(max(n * n, 2 * self._buffer.shape[0]))
-        return self._buffer[: n * n].reshape(n, n)

@@ -64,9 +64,10 @@ class LinearBlock:
     J: np.ndarray
     G_z: np.ndarray
 
-    def covariance_terms(self, P: np.ndarray, range_variance: float) -> tuple[np.ndarray, np.ndarray]:
-        """(cross (q, n), block (q, q)) for :meth:`JointState.append`."""
-        cross = self.J @ P[self.cols, :]
+    def covariance_terms(self, P_cols: np.ndarray, range_variance: float) -> tuple[np.ndarray, np.ndarray]:
+        """(cross (q, n), block (q, q)) for :meth:`JointState.append`, from the (n, c)
+        columns ``P[:, cols]`` (= the rows ``P[cols, :]`` transposed, P being symmetric)."""
+        cross = self.J @ P_cols.T
         block = cross[:, self.cols] @ self.J.T + range_variance * (self.G_z @ self.G_z.T)
         return cross, block
 

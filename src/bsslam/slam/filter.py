@@ -17,13 +17,13 @@ from bsslam.errors import FilterError, FitError, InputError
 from bsslam.scan import LaserScan, ObservedSpline, extract_splines
 from bsslam.scan.refine import refine_for_map
 from bsslam.slam.association import Match, associate, relative_sigma
-from bsslam.slam.ekf import CovarianceColumns, StackedGain, Workspace, gate_threshold, innovation_variances
+from bsslam.slam.ekf import CovarianceColumns, StackedGain, gate_threshold, innovation_variances
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
 from bsslam.slam.features import MapSpline, SplineFeature
 from bsslam.slam.map_curves import MapCurves
 from bsslam.slam.motion import motion_noise, predict
 from bsslam.slam.observation import laser_pose, predict_beams_batch
-from bsslam.slam.state import JointState
+from bsslam.slam.state import POSE, JointState
 from bsslam.spline import FitResult, closest_point, extend_curve, fit_curve
 from bsslam.spline.batch import curve_table
 from bsslam.trajectory import wrap_angle
@@ -124,7 +124,6 @@ class SplineSLAM:
         self.steps = 0
         self._next_id = 0
         self._map: MapCurves | None = None  # batch table of the map splines, see _map_curves
-        self._workspace = Workspace()        # scratch of the covariance update
         self._gate = gate_threshold(self.config.observation.gate_probability)
         self._loose_gate = gate_threshold(1.0 - (1.0 - self.config.observation.gate_probability) / 100.0)
         self._build_map = True
@@ -158,7 +157,7 @@ class SplineSLAM:
     @property
     def pose_covariance(self) -> np.ndarray:
         """(3, 3) covariance of the pose."""
-        return self.state.P[:3, :3].copy()
+        return self.state.pose_covariance
 
     @property
     def state_size(self) -> int:
@@ -208,7 +207,9 @@ class SplineSLAM:
                 Q = np.asarray(odometry_covariance, dtype=float)
                 if Q.shape != (3, 3) or not np.all(np.isfinite(Q)) or np.any(np.linalg.eigvalsh(0.5 * (Q + Q.T)) < 0):
                     raise InputError(f"odometry covariance must be a 3×3 positive semi-definite matrix, got {Q!r}")
-            predict(self.state.x, self.state.P, delta, Q)
+            # the pose rows and columns of the base move with F_x; so do those of the pending term
+            F_x = predict(self.state.x, self.state.base, delta, Q)
+            self.state.transform_pending(POSE, F_x)
         observed = self._observe(scan, report)
         matches = self._associate(observed, offset)
         self._update(observed, matches, offset, report)
@@ -261,7 +262,13 @@ class SplineSLAM:
         far = world.control_points[table.extreme_control_points(
             world.control_points, np.arange(table.n_curves), lp[:2], farthest=True)]  # (k, 2)
         near = mc.state_rows[mc.table.extreme_control_points(cp, candidates, lp[:2])]  # (F, 2)
-        sigma = relative_sigma(self.state.P, self.state.pose, far, near)
+        fixed = near[:, 0] < 0
+        rows = np.maximum(near, 0).ravel()
+        cross = self.state.block(POSE, rows).reshape(3, -1, 2)
+        map_var = self.state.diagonal(rows).reshape(-1, 2).sum(axis=1)
+        cross[:, fixed] = 0.0
+        map_var[fixed] = 0.0
+        sigma = relative_sigma(self.state.pose, self.state.pose_covariance, far, cross, map_var)
         grow = cfg.uncertainty_sigmas * sigma                                   # (k, F)
         delta = np.minimum(cfg.match_distance_m + grow, cfg.max_match_distance_m)
         gate = cfg.control_point_gate_factor * self.config.spline.knot_spacing_m + grow
@@ -362,7 +369,6 @@ class SplineSLAM:
         mc = self._map
         R = self._range_variance
         x0 = self.state.x.copy()
-        P = self.state.P
         lin = self._linearize(beams, x0, offset, report)
         if lin is None:
             return
@@ -370,19 +376,19 @@ class SplineSLAM:
         # so after a poorly predicted step a tight gate drops exactly the beams that disagree
         # with the prior. Gross outliers go first (loose gate at the prior); the real gate is
         # applied at the first corrected estimate with posterior variances.
-        columns = CovarianceColumns(P)
-        s_diag = innovation_variances(P, lin.cols, lin.H_c, R, P_cc=columns.block(lin.cols))
+        columns = CovarianceColumns(self.state)   # P's columns, without folding its pending update
+        s_diag = innovation_variances(columns, lin.cols, lin.H_c, R)
         coarse = lin.residual ** 2 <= self._loose_gate * s_diag
         report.drop("gate", int((~coarse).sum()))
         if not coarse.any():
             return
         beams, lin = self._select(beams, lin, coarse)
-        gain = StackedGain(P, lin.cols, lin.H_c, R, P_c=columns.get(lin.cols))
+        gain = StackedGain(columns, lin.cols, lin.H_c, R)
         x_i = x0 + gain.correction(lin.residual)[0]
         lin = self._linearize(beams, x_i, offset, None)
         if lin is None:
             return
-        fine = lin.residual ** 2 <= self._gate * gain.posterior_variances(P, lin.cols, lin.H_c, R)
+        fine = lin.residual ** 2 <= self._gate * gain.posterior_variances(columns, lin.cols, lin.H_c, R)
         report.drop("gate", int((~fine).sum()))
         if not fine.any():
             return
@@ -393,7 +399,7 @@ class SplineSLAM:
                 if lin is None:
                     return
                 beams, lin = self._select(beams, lin, np.ones(lin.residual.shape[0], dtype=bool))
-            gain = StackedGain(P, lin.cols, lin.H_c, R, P_c=columns.get(lin.cols))
+            gain = StackedGain(columns, lin.cols, lin.H_c, R)
             # IEKF: ν_i = z − h(x_i) − H_i (x₀ − x_i)
             nu = lin.residual - lin.H_c @ (x0[lin.cols] - x_i[lin.cols])
             dx, nis = gain.correction(nu)
@@ -403,7 +409,7 @@ class SplineSLAM:
             if step[0] < 1e-4 and step[1] < 1e-4 and step[2] < 1e-5:  # 0.1 mm, 0.01 mrad: far below σ
                 break
         self.state.x[:] = x_i
-        gain.update_covariance(self.state, self._workspace)
+        gain.update_covariance(self.state)
         self.state.x[2] = wrap_angle(self.state.x[2])
         for c in beams.used_curves:
             mc.features[c].observations += 1
@@ -471,7 +477,7 @@ class SplineSLAM:
         if cfg.mode == "localization":
             feature.fixed_control_points = block.mean.reshape(2, n).T.copy()
         else:
-            cross, cov = block.covariance_terms(self.state.P, self._range_variance)
+            cross, cov = block.covariance_terms(self.state.columns(block.cols), self._range_variance)
             idx = self.state.append(block.mean, cross, cov)
             feature.idx_x, feature.idx_y = idx[:n], idx[n:]
         self.features[feature.id] = feature
@@ -501,11 +507,10 @@ class SplineSLAM:
             f.knots = ext.curve.knots.copy()
             return True
         block = extension_block(new_rows, n_old, f.idx_x, f.idx_y, curve.control_points, bp)
-        cross, cov = block.covariance_terms(self.state.P, self._range_variance)
+        cross, cov = block.covariance_terms(self.state.columns(block.cols), self._range_variance)
         new_idx = self.state.append(block.mean, cross, cov)
         self._transform_block(f.idx_x, ext.T)
         self._transform_block(f.idx_y, ext.T)
-        self.state.symmetrize()  # T P Tᵀ through rows then columns: equal up to rounding only
         new_x, new_y = new_idx[:m], new_idx[m:]
         if side == "right":
             f.idx_x, f.idx_y = np.concatenate([f.idx_x, new_x]), np.concatenate([f.idx_y, new_y])
@@ -516,10 +521,7 @@ class SplineSLAM:
 
     def _transform_block(self, idx: np.ndarray, T: np.ndarray) -> None:
         """x[idx] ← T x[idx] with P's rows and columns carried exactly: P ← T P Tᵀ on that block."""
-        x, P = self.state.x, self.state.P
-        x[idx] = T @ x[idx]
-        P[idx, :] = T @ P[idx, :]
-        P[:, idx] = P[:, idx] @ T.T
+        self.state.transform(idx, T)
 
     def _prune(self) -> int:
         """Remove map splines never used in an update within ``prune_after_scans`` scans of

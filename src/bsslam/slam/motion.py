@@ -21,11 +21,12 @@ def motion_noise(delta: np.ndarray, cfg: MotionNoiseConfig) -> np.ndarray:
     return np.diag([sx * sx, sy * sy, sphi * sphi])
 
 
-def predict(x: np.ndarray, P: np.ndarray, delta: np.ndarray, Q: np.ndarray) -> None:
-    """EKF prediction in place on the live state views.
+def predict(x: np.ndarray, P: np.ndarray, delta: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """EKF prediction in place on the live state views; returns F_x (3, 3).
 
     Only the pose block and the pose rows/columns change:
     ``P_rr ← F_x P_rr F_xᵀ + F_u Q F_uᵀ``, ``P_rm ← F_x P_rm`` — never the full F of (32).
+    A caller that keeps part of P elsewhere (a pending low-rank term) applies F_x to it.
     """
     F_x, F_u = compose_jacobians(x[:3], delta)
     x[:3] = compose(x[:3], delta)
@@ -34,3 +35,4 @@ def predict(x: np.ndarray, P: np.ndarray, delta: np.ndarray, Q: np.ndarray) -> N
     P[:3, 3:] = P_rm
     P[3:, :3] = P_rm.T
     P[:3, :3] = 0.5 * (P_rr + P_rr.T)
+    return F_x
