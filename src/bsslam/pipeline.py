@@ -158,6 +158,7 @@ class _Replayed:
     covariance: np.ndarray | None
     scan: object = None
     laser_offset: np.ndarray | None = None
+    features: object = None      # the scan's splines from the first pass (not fitted twice)
 
 
 def _scan_points(frame_scan, pose, laser_offset, stride: int) -> np.ndarray:
@@ -184,7 +185,7 @@ def _run(dataset, config, steps, progress, total, point_stride, slam, relocalize
         if run_filter:
             report = slam.step(delta, frame.scan, frame.laser_offset, odometry_covariance=delta_cov)
             pose, cov = slam.pose, slam.pose_covariance
-            replay.append(_Replayed(delta, delta_cov, frame.scan, frame.laser_offset))
+            replay.append(_Replayed(delta, delta_cov, frame.scan, frame.laser_offset, report.features))
         else:
             report = None
             pose, cov = motion.schedule.pose_between_updates(slam.pose, slam.pose_covariance)
@@ -244,7 +245,8 @@ def relocalize(splines: list[MapSpline], replay: list[_Replayed], stamps: np.nda
     poses, covs, points = [], [], []
     for i, frame in enumerate(replay):
         if frame.scan is not None:
-            slam.step(frame.delta, frame.scan, frame.laser_offset, odometry_covariance=frame.covariance)
+            slam.step(frame.delta, frame.scan, frame.laser_offset, odometry_covariance=frame.covariance,
+                      features=frame.features)
             pose, cov = slam.pose, slam.pose_covariance
             if point_stride:
                 points.append(_scan_points(frame.scan, pose, frame.laser_offset, point_stride))

@@ -14,7 +14,7 @@ import numpy as np
 
 from bsslam.config import SLAMConfig
 from bsslam.errors import FilterError, FitError, InputError
-from bsslam.scan import LaserScan, ObservedSpline, extract_splines
+from bsslam.scan import LaserScan, ObservedSpline, ScanFeatures, extract_splines
 from bsslam.scan.refine import refine_for_map
 from bsslam.slam.association import Match, associate, relative_sigma
 from bsslam.slam.ekf import CovarianceColumns, StackedGain, gate_threshold, innovation_variances
@@ -47,6 +47,8 @@ class StepReport:
             innovation gate).
         scan_counts: the segmenter's counts (invalid beams by reason, short segments …).
         state_size: dimension of the state after the step.
+        features: the splines fitted to the scan (laser frame), to pass to a later
+            :meth:`SplineSLAM.step` on the same scan instead of fitting it again.
     """
 
     innovations: np.ndarray = field(default_factory=lambda: np.empty(0))
@@ -62,6 +64,7 @@ class StepReport:
     beams_dropped: dict[str, int] = field(default_factory=dict)
     scan_counts: dict[str, int] = field(default_factory=dict)
     state_size: int = 3
+    features: ScanFeatures | None = None
 
     def drop(self, reason: str, count: int) -> None:
         if count:
@@ -184,7 +187,7 @@ class SplineSLAM:
 
     # -- the algorithm ------------------------------------------------------------------
     def step(self, odometry_delta, scan: LaserScan, laser_offset=None,
-             odometry_covariance=None) -> StepReport:
+             odometry_covariance=None, features: ScanFeatures | None = None) -> StepReport:
         """Process one scan.
 
         Args:
@@ -194,6 +197,8 @@ class SplineSLAM:
             laser_offset: (3,) laser pose in the robot frame; zeros by default.
             odometry_covariance: (3, 3) covariance of the increment (m², m·rad, rad²), e.g.
                 from a scan matcher; by default the configured motion noise model.
+            features: this scan's splines from an earlier step's ``report.features``
+                (same scan, same segmentation and spline configuration); fitted here when None.
         """
         offset = np.zeros(3) if laser_offset is None else np.asarray(laser_offset, dtype=float)
         report = StepReport()
@@ -210,7 +215,7 @@ class SplineSLAM:
             # the pose rows and columns of the base move with F_x; so do those of the pending term
             F_x = predict(self.state.x, self.state.base, delta, Q)
             self.state.transform_pending(POSE, F_x)
-        observed = self._observe(scan, report)
+        observed = self._observe(scan, report, features)
         matches = self._associate(observed, offset)
         self._update(observed, matches, offset, report)
         self._reassociate(observed, matches, offset, report)
@@ -221,8 +226,10 @@ class SplineSLAM:
         report.state_size = self.state.size
         return report
 
-    def _observe(self, scan: LaserScan, report: StepReport) -> list[ObservedSpline]:
-        features = extract_splines(scan, self.config)
+    def _observe(self, scan: LaserScan, report: StepReport, features: ScanFeatures | None) -> list[ObservedSpline]:
+        if features is None:
+            features = extract_splines(scan, self.config)
+        report.features = features
         report.scan_counts = dict(features.counts)
         report.observed_splines = len(features.splines)
         return features.splines
