@@ -202,18 +202,20 @@ class MappingConfig:
             those steps exceeds 3.7). Under range noise alone the largest score along a 140-
             point wall is below 3.65 in 99% of draws, so 4 rarely refines a good fit.
         prune_after_scans: a map spline that no update has used within this many scans of
-            its creation leaves the state (0 keeps every spline). Real buildings are full of
-            things seen once — people, chair legs, glass, a door swinging — and each would
-            otherwise stay in the state for good and cost O(n²) in every later update
-            (first 300 scans of intel-noisy: 1919 state dimensions without pruning, 1123
-            with 2).
+            its creation leaves the state (0, the default, keeps every spline). Pruning
+            bounds the state in clutter (first 300 scans of intel-noisy: 1919 state
+            dimensions without, 1123 with 2), but in long corridors it removes the walls seen
+            far ahead, at grazing incidence, before the robot reaches them, and with them
+            what closes the loops: ATE after the second pass with 2 / 0 on aces-noisy
+            0.32 / 0.18 m, csail-rawodom 0.95 / 0.22 m, intel-noisy 0.11 / 0.08 m,
+            intel-rawodom 0.11 / 0.07 m, at 1.3–1.6× the state size.
     """
 
     extend: bool = True
     min_extension_m: float = 0.5
     max_extension_rms_m: float = 0.015
     fit_bias_sigmas: float | None = 4.0
-    prune_after_scans: int = 2
+    prune_after_scans: int = 0
 
     def __post_init__(self) -> None:
         _check(self.min_extension_m >= 0, "mapping.min_extension_m must be ≥ 0")
