@@ -11,7 +11,7 @@ from scipy.stats import chi2
 
 from bsslam.errors import ConfigError
 from bsslam.frontend import FrontendConfig, ReferenceMap, match_scan, scan_points
-from bsslam.frontend.scan_matcher import LikelihoodField, transform_points
+from bsslam.frontend.scan_matcher import LikelihoodField, _offset_grid, transform_points
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.se2 import between
 from bsslam.sim import Arc, SimConfig, WallSet, get_world, simulate
@@ -177,3 +177,20 @@ def test_config_is_validated():
         FrontendConfig(fine_step_m=0.5)
     with pytest.raises(ConfigError):
         FrontendConfig(min_inlier_fraction=1.5)
+
+
+@pytest.mark.parametrize("half, step", [(6, 2), (4, 1), (5, 2), (0, 1)])
+def test_score_grid_equals_score_poses_on_the_offset_grid(half, step):
+    """The sliding-window scorer gives the flat-index scorer's values, offsets in the
+    order of ``_offset_grid``, also for points clipped at the border of the field."""
+    rng = np.random.default_rng(half * 10 + step)
+    ref_pts = rng.uniform(-3.0, 3.0, size=(200, 2))
+    field = LikelihoodField.build(ref_pts, 0.1, 0.15, 0.6)
+    scan = rng.uniform(-4.0, 4.0, size=(60, 2))
+    scan[:3] = [[50.0, 0.0], [0.0, -50.0], [-40.0, 40.0]]        # far outside: clipped
+    poses = np.column_stack((rng.normal(0, 0.2, 7), rng.normal(0, 0.2, 7), rng.uniform(-0.5, 0.5, 7)))
+    expected = field.score_poses(scan, poses, _offset_grid(half, step))
+    got = field.score_grid(scan, poses, half, step)
+    assert got.shape == expected.shape
+    np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-7)
+
