@@ -11,7 +11,7 @@ from scipy.stats import chi2
 
 from bsslam.errors import ConfigError
 from bsslam.frontend import FrontendConfig, ReferenceMap, match_scan, scan_points
-from bsslam.frontend.scan_matcher import LikelihoodField, _offset_grid, transform_points
+from bsslam.frontend.scan_matcher import LikelihoodField, _distinct_maxima, _offset_grid, transform_points
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.se2 import between
 from bsslam.sim import Arc, SimConfig, WallSet, get_world, simulate
@@ -194,3 +194,35 @@ def test_score_grid_equals_score_poses_on_the_offset_grid(half, step):
     assert got.shape == expected.shape
     np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-7)
 
+
+def _distinct_maxima_by_sorting(score, k, *, rot_sep, off, off_sep):
+    """The original full-sort implementation: the oracle of ``_distinct_maxima``."""
+    order = np.argsort(score, axis=None)[::-1]
+    r_all, t_all = np.unravel_index(order, score.shape)
+    taken = []
+    alive = np.ones(order.shape[0], dtype=bool)
+    for _ in range(k):
+        live = np.flatnonzero(alive)
+        if live.shape[0] == 0:
+            break
+        j = live[0]
+        r, t = int(r_all[j]), int(t_all[j])
+        taken.append((r, t))
+        near = (np.abs(r_all - r) < rot_sep) & (np.max(np.abs(off[t_all] - off[t]), axis=1) < off_sep)
+        alive &= ~near
+    return taken
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_distinct_maxima_matches_the_sorting_oracle(seed):
+    rng = np.random.default_rng(seed)
+    off = _offset_grid(6, 2)
+    n_rot = [31, 3, 1, 9, 31, 2][seed]
+    score = rng.random((n_rot, off.shape[0]))
+    k = [4, 4, 10, 50, 1, 200][seed]          # also more than can be distinct
+    expected = _distinct_maxima_by_sorting(score, k, rot_sep=2, off=off, off_sep=4)
+    got = _distinct_maxima(score, k, rot_sep=2, off=off, off_sep=4)
+    assert got == expected
+    score_copy = score.copy()
+    _distinct_maxima(score, k, rot_sep=2, off=off, off_sep=4)
+    np.testing.assert_array_equal(score, score_copy)

@@ -469,20 +469,29 @@ class ReferenceMap:
 
 def _distinct_maxima(score: np.ndarray, k: int, *, rot_sep: int, off: np.ndarray, off_sep: int) -> list[tuple[int, int]]:
     """Up to ``k`` (rotation, offset) indices of the highest scores, each at least
-    ``rot_sep`` rotation steps or ``off_sep`` cells from those already taken."""
-    order = np.argsort(score, axis=None)[::-1]
-    r_all, t_all = np.unravel_index(order, score.shape)
+    ``rot_sep`` rotation steps or ``off_sep`` cells from those already taken.
+
+    Args:
+        score: (r, t) scores (rotations × offsets); not modified.
+        off: (t, 2) the offsets (cells) of the columns.
+
+    Greedy: take the highest remaining score, then knock out its neighbourhood (an outer
+    product of a rotation mask and an offset mask) and repeat; ``k`` argmax passes over the
+    (r, t) array instead of a full sort. Ties go to the lowest flat index.
+    """
+    left = np.array(score, dtype=float).ravel()     # a copy: knocked-out entries become −inf
+    n_rot, n_off = score.shape
+    rot_index = np.arange(n_rot)
     taken: list[tuple[int, int]] = []
-    alive = np.ones(order.shape[0], dtype=bool)
-    for _ in range(k):
-        live = np.flatnonzero(alive)
-        if live.shape[0] == 0:
+    for _ in range(min(k, left.shape[0])):
+        j = int(np.argmax(left))
+        if left[j] == -np.inf:
             break
-        j = live[0]
-        r, t = int(r_all[j]), int(t_all[j])
+        r, t = divmod(j, n_off)
         taken.append((r, t))
-        near = (np.abs(r_all - r) < rot_sep) & (np.max(np.abs(off[t_all] - off[t]), axis=1) < off_sep)
-        alive &= ~near
+        near_rot = np.abs(rot_index - r) < rot_sep
+        near_off = np.max(np.abs(off - off[t]), axis=1) < off_sep
+        left.reshape(n_rot, n_off)[np.ix_(near_rot, near_off)] = -np.inf
     return taken
 
 
