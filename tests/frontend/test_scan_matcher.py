@@ -11,7 +11,7 @@ from scipy.stats import chi2
 
 from bsslam.errors import ConfigError
 from bsslam.frontend import FrontendConfig, ReferenceMap, match_scan, scan_points
-from bsslam.frontend.scan_matcher import LikelihoodField, _distinct_maxima, _offset_grid, transform_points
+from bsslam.frontend.scan_matcher import LikelihoodField, _distinct_maxima, _offset_grid, _search_grid, transform_points
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.se2 import between
 from bsslam.sim import Arc, SimConfig, WallSet, get_world, simulate
@@ -226,3 +226,23 @@ def test_distinct_maxima_matches_the_sorting_oracle(seed):
     score_copy = score.copy()
     _distinct_maxima(score, k, rot_sep=2, off=off, off_sep=4)
     np.testing.assert_array_equal(score, score_copy)
+
+
+def test_search_grid_is_the_per_scan_grid():
+    """The cached pose grids equal those the correlative search used to build per scan."""
+    cfg = FrontendConfig()
+    res_c, res_f = 0.5 * cfg.coarse_step_m, cfg.fine_step_m
+    grid = _search_grid(cfg, res_c, res_f)
+    assert _search_grid(cfg, res_c, res_f) is grid
+    n_rot = int(np.floor(cfg.search_window_rad / cfg.coarse_step_rad + 1e-9))
+    np.testing.assert_allclose(grid.rot_steps, cfg.coarse_step_rad * np.arange(-n_rot, n_rot + 1))
+    assert grid.rot_steps.shape == (31,)
+    offsets = _offset_grid(int(round(cfg.search_window_m / res_c)), 2)
+    np.testing.assert_array_equal(grid.offsets, offsets)
+    np.testing.assert_allclose(grid.offsets_m, offsets * res_c)
+    penalty = cfg.search_prior_weight * (np.sum((offsets * res_c) ** 2, axis=1)[None, :] / (2 * cfg.search_window_m ** 2)
+                                         + (grid.rot_steps ** 2)[:, None] / (2 * cfg.search_window_rad ** 2))
+    np.testing.assert_allclose(grid.coarse_penalty, penalty)
+    assert grid.coarse_penalty.max() == pytest.approx(cfg.search_prior_weight * 2.0 * 0.5 + cfg.search_prior_weight * 0.5)
+    np.testing.assert_allclose(grid.fine_rot, cfg.fine_step_rad * np.arange(-4, 5))
+    np.testing.assert_allclose(grid.fine_offsets_m, _offset_grid(4, 1) * res_f)

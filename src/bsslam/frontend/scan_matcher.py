@@ -27,6 +27,7 @@ points are given in the robot frame (laser offset already applied, see
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -219,6 +220,53 @@ def _offset_grid(half_cells: int, step_cells: int) -> np.ndarray:
     return np.column_stack((gx.ravel(), gy.ravel()))
 
 
+@dataclass(frozen=True)
+class _SearchGrid:
+    """The pose grids of the two correlative levels, which depend only on the
+    configuration and the two fields' resolutions (so they are built once, not per scan).
+
+    Attributes:
+        rot_steps: (r,) coarse rotations relative to the guess (rad).
+        coarse_half, coarse_step: the coarse offsets are ``_offset_grid(coarse_half,
+            coarse_step)`` (coarse cells); offsets (t, 2) those cells, offsets_m (t, 2) in m.
+        coarse_penalty: (r, t) ``search_prior_weight`` × the quadratic penalty of each
+            coarse pose's distance from the guess.
+        fine_rot: (f,) fine rotations relative to a coarse candidate (rad).
+        fine_half: the fine offsets are ``_offset_grid(fine_half, 1)`` (fine cells);
+            fine_offsets_m (t', 2) in m.
+    """
+
+    rot_steps: np.ndarray
+    coarse_half: int
+    coarse_step: int
+    offsets: np.ndarray
+    offsets_m: np.ndarray
+    coarse_penalty: np.ndarray
+    fine_rot: np.ndarray
+    fine_half: int
+    fine_offsets_m: np.ndarray
+
+
+@lru_cache(maxsize=16)
+def _search_grid(cfg: FrontendConfig, res_c: float, res_f: float) -> _SearchGrid:
+    n_rot = int(np.floor(cfg.search_window_rad / cfg.coarse_step_rad + 1e-9))
+    rot_steps = cfg.coarse_step_rad * np.arange(-n_rot, n_rot + 1)
+    step_c = max(1, int(round(cfg.coarse_step_m / res_c)))
+    half_c = int(round(cfg.search_window_m / res_c))
+    offsets = _offset_grid(half_c, step_c)
+    offsets_m = offsets * res_c
+    penalty = cfg.search_prior_weight * (np.sum(offsets_m ** 2, axis=1)[None, :] / (2 * cfg.search_window_m ** 2)
+                                         + (rot_steps ** 2)[:, None] / (2 * cfg.search_window_rad ** 2))
+    n_fine_rot = int(round(cfg.coarse_step_rad / cfg.fine_step_rad))
+    fine_rot = cfg.fine_step_rad * np.arange(-n_fine_rot, n_fine_rot + 1)
+    half_f = int(round(cfg.coarse_step_m / res_f))
+    grid = _SearchGrid(rot_steps, half_c, step_c, offsets, offsets_m, penalty, fine_rot, half_f,
+                       _offset_grid(half_f, 1) * res_f)
+    for a in (grid.rot_steps, grid.offsets, grid.offsets_m, grid.coarse_penalty, grid.fine_rot, grid.fine_offsets_m):
+        a.flags.writeable = False          # shared between calls
+    return grid
+
+
 # ---------------------------------------------------------------------------------------------
 # result
 
@@ -316,38 +364,33 @@ class ReferenceMap:
         mean likelihood."""
         cfg = self.config
         guess = np.asarray(guess, dtype=float)
-        n_rot = int(np.floor(cfg.search_window_rad / cfg.coarse_step_rad + 1e-9))
-        rots = guess[2] + cfg.coarse_step_rad * np.arange(-n_rot, n_rot + 1)
+        grid = _search_grid(cfg, self.coarse.resolution, self.fine.resolution)
+        rots = guess[2] + grid.rot_steps
         poses = np.column_stack((np.full_like(rots, guess[0]), np.full_like(rots, guess[1]), rots))
-        res_c = self.coarse.resolution
-        step_c = max(1, int(round(cfg.coarse_step_m / res_c)))
-        offsets = _offset_grid(int(round(cfg.search_window_m / res_c)), step_c)
-        score = self.coarse.score_grid(points, poses, int(round(cfg.search_window_m / res_c)), step_c)  # (r, t)
+        score = self.coarse.score_grid(points, poses, grid.coarse_half, grid.coarse_step)   # (r, t)
         # Quadratic tie-break towards the guess: −w at the window's corner.
-        dxy = offsets * res_c
-        prior = (np.sum(dxy ** 2, axis=1)[None, :] / (2 * cfg.search_window_m ** 2)
-                 + ((rots - guess[2]) ** 2)[:, None] / (2 * cfg.search_window_rad ** 2))
-        score = score - cfg.search_prior_weight * prior
-        candidates = _distinct_maxima(score, cfg.coarse_candidates,
-                                      rot_sep=2, off=offsets, off_sep=2 * step_c)
+        score = score - grid.coarse_penalty
+        candidates = np.array(_distinct_maxima(score, cfg.coarse_candidates, rot_sep=2, off=grid.offsets,
+                                               off_sep=2 * grid.coarse_step), dtype=np.intp).reshape(-1, 2)
         # Fine level: ±1 coarse step (rotation and translation) around each candidate: the
         # blurred coarse peak can sit a whole step from the true one.
-        n_fine_rot = int(round(cfg.coarse_step_rad / cfg.fine_step_rad))
-        fine_rot = cfg.fine_step_rad * np.arange(-n_fine_rot, n_fine_rot + 1)
-        centres = np.array([[guess[0] + offsets[t, 0] * res_c, guess[1] + offsets[t, 1] * res_c, rots[r]]
-                            for r, t in candidates])
-        fine_poses = np.repeat(centres, fine_rot.shape[0], axis=0)
-        fine_poses[:, 2] += np.tile(fine_rot, centres.shape[0])
-        res_f = self.fine.resolution
-        fine_offsets = _offset_grid(int(round(cfg.coarse_step_m / res_f)), 1)
-        fine = self.fine.score_grid(points, fine_poses, int(round(cfg.coarse_step_m / res_f)), 1)
-        dxy = fine_poses[:, None, :2] + fine_offsets[None, :, :] * res_f - guess[:2]
-        fprior = (np.sum(dxy ** 2, axis=2) / (2 * cfg.search_window_m ** 2)
-                  + ((fine_poses[:, 2] - guess[2]) ** 2)[:, None] / (2 * cfg.search_window_rad ** 2))
+        shift = grid.offsets_m[candidates[:, 1]]                                  # (k, 2) m from the guess
+        turn = grid.rot_steps[candidates[:, 0]]                                   # (k,) rad from the guess
+        centres = np.column_stack((guess[0] + shift[:, 0], guess[1] + shift[:, 1], rots[candidates[:, 0]]))
+        n_fine = grid.fine_rot.shape[0]
+        fine_poses = np.repeat(centres, n_fine, axis=0)
+        fine_poses[:, 2] += np.tile(grid.fine_rot, centres.shape[0])
+        fine = self.fine.score_grid(points, fine_poses, grid.fine_half, 1)
+        # The same penalty, split into its translation (k, t) and rotation (k, f) parts.
+        dx = shift[:, 0:1] + grid.fine_offsets_m[None, :, 0]
+        dy = shift[:, 1:2] + grid.fine_offsets_m[None, :, 1]
+        trans = (dx * dx + dy * dy) / (2 * cfg.search_window_m ** 2)
+        rot = (turn[:, None] + grid.fine_rot[None, :]) ** 2 / (2 * cfg.search_window_rad ** 2)
+        fprior = (trans[:, None, :] + rot[:, :, None]).reshape(fine.shape)
         total = fine - cfg.search_prior_weight * fprior
-        p, t = np.unravel_index(int(np.argmax(total)), total.shape)
+        p, t = divmod(int(np.argmax(total)), total.shape[1])
         best = fine_poses[p].copy()
-        best[:2] += fine_offsets[t] * res_f
+        best[:2] += grid.fine_offsets_m[t]
         return best, float(fine[p, t])
 
     # -- refinement ------------------------------------------------------------------------
