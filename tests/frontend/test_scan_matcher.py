@@ -246,3 +246,25 @@ def test_search_grid_is_the_per_scan_grid():
     assert grid.coarse_penalty.max() == pytest.approx(cfg.search_prior_weight * 2.0 * 0.5 + cfg.search_prior_weight * 0.5)
     np.testing.assert_allclose(grid.fine_rot, cfg.fine_step_rad * np.arange(-4, 5))
     np.testing.assert_allclose(grid.fine_offsets_m, _offset_grid(4, 1) * res_f)
+
+
+def test_residuals_match_the_elementwise_formulas():
+    """_residuals (matrix form) against the per-component formulas, including points
+    without a correspondence within the gate."""
+    rng = np.random.default_rng(5)
+    ref, cur, true = _room_pair(rng)
+    reference = ReferenceMap(ref)
+    x = true + np.array([0.02, -0.01, 0.01])
+    cur = np.concatenate((cur, [[40.0, 40.0]]))                  # no reference point near
+    r, J, w, found = reference._residuals(cur, x, 0.15)
+    assert not found[-1] and found.sum() == r.shape[0] > 100
+    c, s = math.cos(x[2]), math.sin(x[2])
+    px, py = cur[found, 0], cur[found, 1]
+    wx, wy = c * px - s * py + x[0], s * px + c * py + x[1]
+    _, idx = reference.tree.query(np.column_stack((wx, wy)))
+    q, n = reference.line_points[idx], reference.line_normals[idx]
+    np.testing.assert_allclose(r, n[:, 0] * (wx - q[:, 0]) + n[:, 1] * (wy - q[:, 1]), atol=1e-12)
+    J_expected = np.column_stack((n[:, 0], n[:, 1], n[:, 0] * (-s * px - c * py) + n[:, 1] * (c * px - s * py)))
+    np.testing.assert_allclose(J, J_expected, atol=1e-12)
+    a = np.abs(r)
+    np.testing.assert_allclose(w, np.where(a <= CFG.huber_m, 1.0, CFG.huber_m / a), rtol=1e-15)

@@ -26,6 +26,7 @@ points are given in the robot frame (laser offset already applied, see
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -410,17 +411,20 @@ class ReferenceMap:
         it = 0
         for it in range(1, cfg.icp_iterations + 1):
             r, J, w, _ = self._residuals(points, x, gate)
-            H = (J * w[:, None]).T @ J / sigma2 + prior_information
+            # [H | g] of the scan in one product: Jᵀ W [J | r].
+            Jw = J * w[:, None]
+            Hg = Jw.T @ np.column_stack((J, r)) / sigma2
             e = x - prior_mean
             e[2] = wrap_angle(e[2])
-            g = (J * w[:, None]).T @ r / sigma2 + prior_information @ e
+            H = Hg[:, :3] + prior_information
+            g = Hg[:, 3] + prior_information @ e
             try:
                 delta = -np.linalg.solve(H, g)
             except np.linalg.LinAlgError:
                 break
             x = x + delta
             x[2] = wrap_angle(x[2])
-            small = np.hypot(delta[0], delta[1]) < 2e-4 and abs(delta[2]) < 2e-4
+            small = math.hypot(delta[0], delta[1]) < 2e-4 and abs(delta[2]) < 2e-4
             if small and gate <= cfg.icp_min_distance_m:
                 break
             # The correlative start is within a fine step: the wide gate is only needed to
@@ -435,18 +439,29 @@ class ReferenceMap:
         return x, info, residuals, weights, it
 
     def _residuals(self, points: np.ndarray, x: np.ndarray, gate: float):
-        c, s = np.cos(x[2]), np.sin(x[2])
-        px, py = points[:, 0], points[:, 1]
-        wx, wy = c * px - s * py + x[0], s * px + c * py + x[1]
-        dist, idx = self.tree.query(np.column_stack((wx, wy)), distance_upper_bound=gate)
+        """Point-to-line residuals of robot-frame ``points`` (n, 2) moved by the pose ``x``
+        (3,) against their nearest line-like reference point within ``gate`` (m).
+
+        Returns:
+            r (m,) residuals nᵀ(R p + t − q) (m), J (m, 3) their Jacobian in (x, y, φ),
+            w (m,) Huber weights, found (n,) which points had a correspondence (m of them).
+        """
+        c, s = math.cos(x[2]), math.sin(x[2])
+        rotated = points @ np.array([[c, s], [-s, c]])                     # R p, (n, 2)
+        moved = rotated + x[:2]
+        dist, idx = self.tree.query(moved, distance_upper_bound=gate)
         found = np.isfinite(dist)
-        idx = idx[found]
+        if not found.all():
+            idx, rotated, moved = idx[found], rotated[found], moved[found]
         q, n = self.line_points[idx], self.line_normals[idx]
-        wx, wy, px, py = wx[found], wy[found], px[found], py[found]
-        r = n[:, 0] * (wx - q[:, 0]) + n[:, 1] * (wy - q[:, 1])
-        J = np.column_stack((n[:, 0], n[:, 1], n[:, 0] * (-s * px - c * py) + n[:, 1] * (c * px - s * py)))
-        a = np.abs(r)
-        w = np.where(a <= self.config.huber_m, 1.0, self.config.huber_m / np.maximum(a, 1e-12))
+        r = np.einsum("ij,ij->i", n, moved - q)
+        J = np.empty((r.shape[0], 3))
+        J[:, :2] = n
+        # ∂(R p)/∂φ = (−(R p)_y, (R p)_x)
+        J[:, 2] = n[:, 1] * rotated[:, 0] - n[:, 0] * rotated[:, 1]
+        # Huber: 1 inside the threshold, huber/|r| outside.
+        huber = self.config.huber_m
+        w = huber / np.maximum(np.abs(r), huber)
         return r, J, w, found
 
     # -- the whole match ---------------------------------------------------------------------
