@@ -11,7 +11,7 @@ from scipy.stats import chi2
 
 from bsslam.errors import ConfigError
 from bsslam.frontend import FrontendConfig, ReferenceMap, match_scan, scan_points
-from bsslam.frontend.scan_matcher import LikelihoodField, _distinct_maxima, _offset_grid, _search_grid, transform_points
+from bsslam.frontend.scan_matcher import LikelihoodField, _distinct_maxima, _kdtree, _offset_grid, _search_grid, transform_points
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.se2 import between
 from bsslam.sim import Arc, SimConfig, WallSet, get_world, simulate
@@ -268,3 +268,17 @@ def test_residuals_match_the_elementwise_formulas():
     np.testing.assert_allclose(J, J_expected, atol=1e-12)
     a = np.abs(r)
     np.testing.assert_allclose(w, np.where(a <= CFG.huber_m, 1.0, CFG.huber_m / a), rtol=1e-15)
+
+
+def test_kdtree_finds_the_brute_force_nearest_neighbours():
+    rng = np.random.default_rng(11)
+    pts = rng.uniform(-5.0, 5.0, size=(700, 2))
+    queries = rng.uniform(-6.0, 6.0, size=(300, 2))
+    d2 = np.sum((queries[:, None, :] - pts[None, :, :]) ** 2, axis=2)
+    dist, idx = _kdtree(pts).query(queries, k=3)
+    np.testing.assert_array_equal(idx, np.argsort(d2, axis=1)[:, :3])
+    np.testing.assert_allclose(dist, np.sqrt(np.sort(d2, axis=1)[:, :3]), rtol=1e-12)
+    dist, idx = _kdtree(pts).query(queries, distance_upper_bound=0.2)
+    near = np.sqrt(d2.min(axis=1)) < 0.2
+    np.testing.assert_array_equal(np.isfinite(dist), near)
+    np.testing.assert_array_equal(idx[near], np.argmin(d2, axis=1)[near])
