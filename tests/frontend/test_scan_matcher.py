@@ -282,3 +282,21 @@ def test_kdtree_finds_the_brute_force_nearest_neighbours():
     near = np.sqrt(d2.min(axis=1)) < 0.2
     np.testing.assert_array_equal(np.isfinite(dist), near)
     np.testing.assert_array_equal(idx[near], np.argmin(d2, axis=1)[near])
+
+
+def test_score_grid_follows_in_place_additions_and_pickles_without_views():
+    import pickle
+
+    rng = np.random.default_rng(8)
+    field = LikelihoodField.build(rng.uniform(-3.0, 3.0, size=(100, 2)), 0.05, 0.07, 0.4)
+    scan = rng.uniform(-2.0, 2.0, size=(40, 2))
+    poses = np.zeros((2, 3))
+    poses[1] = [0.1, -0.05, 0.2]
+    before = field.score_grid(scan, poses, 4, 1)           # caches the window view
+    field.add(rng.uniform(-2.0, 2.0, size=(50, 2)))
+    after = field.score_grid(scan, poses, 4, 1)
+    assert np.all(after >= before) and np.any(after > before)
+    np.testing.assert_allclose(after, field.score_poses(scan, poses, _offset_grid(4, 1)), rtol=1e-5, atol=1e-7)
+    copy = pickle.loads(pickle.dumps(field))
+    assert "_window_views" not in copy.__dict__
+    np.testing.assert_array_equal(copy.score_grid(scan, poses, 4, 1), after)
