@@ -11,7 +11,7 @@ from scipy.stats import chi2
 
 from bsslam.errors import ConfigError
 from bsslam.frontend import FrontendConfig, ReferenceMap, match_scan, scan_points
-from bsslam.frontend.scan_matcher import LikelihoodField, transform_points
+from bsslam.frontend.scan_matcher import LikelihoodField, _distinct_maxima, _kdtree, _offset_grid, _search_grid, transform_points
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.se2 import between
 from bsslam.sim import Arc, SimConfig, WallSet, get_world, simulate
@@ -177,3 +177,126 @@ def test_config_is_validated():
         FrontendConfig(fine_step_m=0.5)
     with pytest.raises(ConfigError):
         FrontendConfig(min_inlier_fraction=1.5)
+
+
+@pytest.mark.parametrize("half, step", [(6, 2), (4, 1), (5, 2), (0, 1)])
+def test_score_grid_equals_score_poses_on_the_offset_grid(half, step):
+    """The sliding-window scorer gives the flat-index scorer's values, offsets in the
+    order of ``_offset_grid``, also for points clipped at the border of the field."""
+    rng = np.random.default_rng(half * 10 + step)
+    ref_pts = rng.uniform(-3.0, 3.0, size=(200, 2))
+    field = LikelihoodField.build(ref_pts, 0.1, 0.15, 0.6)
+    scan = rng.uniform(-4.0, 4.0, size=(60, 2))
+    scan[:3] = [[50.0, 0.0], [0.0, -50.0], [-40.0, 40.0]]        # far outside: clipped
+    poses = np.column_stack((rng.normal(0, 0.2, 7), rng.normal(0, 0.2, 7), rng.uniform(-0.5, 0.5, 7)))
+    expected = field.score_poses(scan, poses, _offset_grid(half, step))
+    got = field.score_grid(scan, poses, half, step)
+    assert got.shape == expected.shape
+    np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-7)
+
+
+def _distinct_maxima_by_sorting(score, k, *, rot_sep, off, off_sep):
+    """The original full-sort implementation: the oracle of ``_distinct_maxima``."""
+    order = np.argsort(score, axis=None)[::-1]
+    r_all, t_all = np.unravel_index(order, score.shape)
+    taken = []
+    alive = np.ones(order.shape[0], dtype=bool)
+    for _ in range(k):
+        live = np.flatnonzero(alive)
+        if live.shape[0] == 0:
+            break
+        j = live[0]
+        r, t = int(r_all[j]), int(t_all[j])
+        taken.append((r, t))
+        near = (np.abs(r_all - r) < rot_sep) & (np.max(np.abs(off[t_all] - off[t]), axis=1) < off_sep)
+        alive &= ~near
+    return taken
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_distinct_maxima_matches_the_sorting_oracle(seed):
+    rng = np.random.default_rng(seed)
+    off = _offset_grid(6, 2)
+    n_rot = [31, 3, 1, 9, 31, 2][seed]
+    score = rng.random((n_rot, off.shape[0]))
+    k = [4, 4, 10, 50, 1, 200][seed]          # also more than can be distinct
+    expected = _distinct_maxima_by_sorting(score, k, rot_sep=2, off=off, off_sep=4)
+    got = _distinct_maxima(score, k, rot_sep=2, off=off, off_sep=4)
+    assert got == expected
+    score_copy = score.copy()
+    _distinct_maxima(score, k, rot_sep=2, off=off, off_sep=4)
+    np.testing.assert_array_equal(score, score_copy)
+
+
+def test_search_grid_is_the_per_scan_grid():
+    """The cached pose grids equal those the correlative search used to build per scan."""
+    cfg = FrontendConfig()
+    res_c, res_f = 0.5 * cfg.coarse_step_m, cfg.fine_step_m
+    grid = _search_grid(cfg, res_c, res_f)
+    assert _search_grid(cfg, res_c, res_f) is grid
+    n_rot = int(np.floor(cfg.search_window_rad / cfg.coarse_step_rad + 1e-9))
+    np.testing.assert_allclose(grid.rot_steps, cfg.coarse_step_rad * np.arange(-n_rot, n_rot + 1))
+    assert grid.rot_steps.shape == (31,)
+    offsets = _offset_grid(int(round(cfg.search_window_m / res_c)), 2)
+    np.testing.assert_array_equal(grid.offsets, offsets)
+    np.testing.assert_allclose(grid.offsets_m, offsets * res_c)
+    penalty = cfg.search_prior_weight * (np.sum((offsets * res_c) ** 2, axis=1)[None, :] / (2 * cfg.search_window_m ** 2)
+                                         + (grid.rot_steps ** 2)[:, None] / (2 * cfg.search_window_rad ** 2))
+    np.testing.assert_allclose(grid.coarse_penalty, penalty)
+    assert grid.coarse_penalty.max() == pytest.approx(cfg.search_prior_weight * 2.0 * 0.5 + cfg.search_prior_weight * 0.5)
+    np.testing.assert_allclose(grid.fine_rot, cfg.fine_step_rad * np.arange(-4, 5))
+    np.testing.assert_allclose(grid.fine_offsets_m, _offset_grid(4, 1) * res_f)
+
+
+def test_residuals_match_the_elementwise_formulas():
+    """_residuals (matrix form) against the per-component formulas, including points
+    without a correspondence within the gate."""
+    rng = np.random.default_rng(5)
+    ref, cur, true = _room_pair(rng)
+    reference = ReferenceMap(ref)
+    x = true + np.array([0.02, -0.01, 0.01])
+    cur = np.concatenate((cur, [[40.0, 40.0]]))                  # no reference point near
+    r, J, w, found = reference._residuals(cur, x, 0.15)
+    assert not found[-1] and found.sum() == r.shape[0] > 100
+    c, s = math.cos(x[2]), math.sin(x[2])
+    px, py = cur[found, 0], cur[found, 1]
+    wx, wy = c * px - s * py + x[0], s * px + c * py + x[1]
+    _, idx = reference.tree.query(np.column_stack((wx, wy)))
+    q, n = reference.line_points[idx], reference.line_normals[idx]
+    np.testing.assert_allclose(r, n[:, 0] * (wx - q[:, 0]) + n[:, 1] * (wy - q[:, 1]), atol=1e-12)
+    J_expected = np.column_stack((n[:, 0], n[:, 1], n[:, 0] * (-s * px - c * py) + n[:, 1] * (c * px - s * py)))
+    np.testing.assert_allclose(J, J_expected, atol=1e-12)
+    a = np.abs(r)
+    np.testing.assert_allclose(w, np.where(a <= CFG.huber_m, 1.0, CFG.huber_m / a), rtol=1e-15)
+
+
+def test_kdtree_finds_the_brute_force_nearest_neighbours():
+    rng = np.random.default_rng(11)
+    pts = rng.uniform(-5.0, 5.0, size=(700, 2))
+    queries = rng.uniform(-6.0, 6.0, size=(300, 2))
+    d2 = np.sum((queries[:, None, :] - pts[None, :, :]) ** 2, axis=2)
+    dist, idx = _kdtree(pts).query(queries, k=3)
+    np.testing.assert_array_equal(idx, np.argsort(d2, axis=1)[:, :3])
+    np.testing.assert_allclose(dist, np.sqrt(np.sort(d2, axis=1)[:, :3]), rtol=1e-12)
+    dist, idx = _kdtree(pts).query(queries, distance_upper_bound=0.2)
+    near = np.sqrt(d2.min(axis=1)) < 0.2
+    np.testing.assert_array_equal(np.isfinite(dist), near)
+    np.testing.assert_array_equal(idx[near], np.argmin(d2, axis=1)[near])
+
+
+def test_score_grid_follows_in_place_additions_and_pickles_without_views():
+    import pickle
+
+    rng = np.random.default_rng(8)
+    field = LikelihoodField.build(rng.uniform(-3.0, 3.0, size=(100, 2)), 0.05, 0.07, 0.4)
+    scan = rng.uniform(-2.0, 2.0, size=(40, 2))
+    poses = np.zeros((2, 3))
+    poses[1] = [0.1, -0.05, 0.2]
+    before = field.score_grid(scan, poses, 4, 1)           # caches the window view
+    field.add(rng.uniform(-2.0, 2.0, size=(50, 2)))
+    after = field.score_grid(scan, poses, 4, 1)
+    assert np.all(after >= before) and np.any(after > before)
+    np.testing.assert_allclose(after, field.score_poses(scan, poses, _offset_grid(4, 1)), rtol=1e-5, atol=1e-7)
+    copy = pickle.loads(pickle.dumps(field))
+    assert "_window_views" not in copy.__dict__
+    np.testing.assert_array_equal(copy.score_grid(scan, poses, 4, 1), after)
