@@ -154,3 +154,70 @@ def test_candidate_span_counts_keep_every_count_the_one_by_one_search_accepts(de
             assert spans in got                  # the screen never drops a count that passes
         elif not sw:
             assert spans not in got
+
+
+def _fit_by_full_search(points, degree, spacing, t, gain):
+    """fit_curve as it was first written (the oracle): screen every span count, then
+    factorise the survivors from the most spans down; (n_control, knots, Φ) or None."""
+    from bsslam.spline.fit import iter_span_counts, least_squares_operator
+    from bsslam.spline.knots import clamped_knots_with_spans, span_count
+
+    distinct, mult = np.unique(t, return_counts=True)
+    length = float(t[-1] - t[0])
+    most = min(span_count(length, spacing), distinct.shape[0] - degree)
+    for spans in iter_span_counts(t, distinct, mult, degree, most, gain):
+        knots = clamped_knots_with_spans(length, spans, degree, start=float(t[0]))
+        knots[-degree - 1:] = t[-1]
+        phi = least_squares_operator(collocation_matrix(knots, degree, t), gain)
+        if phi is not None:
+            return knots, phi
+    return None
+
+
+@SETTINGS
+@given(degree=st.integers(1, 4), m=st.integers(5, 120), spacing=st.floats(0.05, 1.0),
+       gain=st.sampled_from([None, 1.5, 3.0, 10.0]), seed=st.integers(0, 2**32 - 1))
+def test_fit_curve_chooses_and_solves_as_the_full_search(degree, m, spacing, gain, seed):
+    """Deciding the most spans first and searching the rest only if they fail gives the full
+    search's span count, knots and Φ, bit for bit (or the same FitError)."""
+    rng = np.random.default_rng(seed)
+    t = _clustered_params(rng, m)
+    pts = rng.normal(size=(m, 2))
+    want = _fit_by_full_search(pts, degree, spacing, t, gain)
+    if want is None:
+        with pytest.raises(FitError):
+            fit_curve(pts, degree, spacing, params=t, max_noise_gain=gain)
+        return
+    got = fit_curve(pts, degree, spacing, params=t, max_noise_gain=gain)
+    np.testing.assert_array_equal(got.curve.knots, want[0])
+    np.testing.assert_array_equal(got.phi, want[1])
+    np.testing.assert_array_equal(got.curve.control_points, want[1] @ pts)
+
+
+@SETTINGS
+@given(m=st.integers(1, 60), seed=st.integers(0, 2**32 - 1))
+def test_distinct_sorted_is_unique_of_a_sorted_array(m, seed):
+    from bsslam.spline.fit import _distinct_sorted
+
+    t = np.sort(np.round(np.random.default_rng(seed).uniform(0, 3, m), 1))
+    got = _distinct_sorted(t)
+    want = np.unique(t, return_counts=True, return_inverse=True)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[2])
+    np.testing.assert_array_equal(got[2], want[1])
+
+
+@SETTINGS
+@given(degree=st.integers(1, 4), m=st.integers(6, 80), spans=st.integers(1, 12), seed=st.integers(0, 2**32 - 1))
+def test_schoenberg_whitney_on_repeated_rows_is_that_on_distinct_parameters(degree, m, spans, seed):
+    from bsslam.spline import basis_functions
+    from bsslam.spline.fit import _distinct_sorted, _schoenberg_whitney_holds, satisfies_schoenberg_whitney
+    from bsslam.spline.knots import clamped_knots_with_spans
+
+    t = _clustered_params(np.random.default_rng(seed), m)
+    knots = clamped_knots_with_spans(float(t[-1] - t[0]), spans, degree, start=float(t[0]))
+    knots[-degree - 1:] = t[-1]
+    distinct, _, inverse = _distinct_sorted(t)
+    span, values = basis_functions(knots, degree, t)
+    got = _schoenberg_whitney_holds(span, values[0], inverse, distinct.shape[0], spans + degree, degree)
+    assert got == satisfies_schoenberg_whitney(knots, degree, distinct)

@@ -56,12 +56,27 @@ def satisfies_schoenberg_whitney(
         columns: which basis functions must be determined by the data.
     """
     span, values = basis_functions(knots, degree, params)
-    n_control = knots.shape[0] - degree - 1
     m = params.shape[0]
-    nonzero = values[0] > 0
+    return _schoenberg_whitney_holds(span, values[0], np.arange(m), m, knots.shape[0] - degree - 1, degree,
+                                     columns)
+
+
+def _schoenberg_whitney_holds(span: np.ndarray, beta: np.ndarray, rows: np.ndarray, d: int, n_control: int,
+                              degree: int, columns: slice = slice(None)) -> bool:
+    """Schoenberg–Whitney decided from basis values already evaluated (the greedy match of
+    :func:`satisfies_schoenberg_whitney`).
+
+    Args:
+        span: (r,) knot span of each evaluated parameter; beta: (r, degree+1) its basis values.
+        rows: (r,) index of each evaluated parameter among the d distinct ones, non-decreasing
+            (rows of repeated parameters hold identical values, so they may all be given).
+        d: number of distinct parameters; n_control: number of basis functions.
+        degree: polynomial degree p; columns: the basis functions that must be determined.
+    """
+    nonzero = beta > 0
     basis = (span[:, None] - degree + np.arange(degree + 1))[nonzero]
-    rows = np.broadcast_to(np.arange(m)[:, None], nonzero.shape)[nonzero]
-    first = np.full(n_control, m)
+    rows = np.broadcast_to(rows[:, None], nonzero.shape)[nonzero]
+    first = np.full(n_control, d)
     last = np.full(n_control, -1)
     np.minimum.at(first, basis, rows)
     np.maximum.at(last, basis, rows)
@@ -305,12 +320,19 @@ def fit_curve(points: object, degree: int, spacing_m: float, params: object = No
     length = float(t[-1] - t[0])
     if not length > 0:
         raise FitError("all points share one parameter (coincident points); nothing to fit")
-    distinct, multiplicity = np.unique(t, return_counts=True)
+    distinct, multiplicity, inverse = _distinct_sorted(t)
     # n_control = spans + degree can never exceed the number of distinct parameters.
-    most = min(span_count(length, spacing_m), distinct.shape[0] - degree)
-    # The most spans that give a well-posed fit win. Schoenberg–Whitney and a lower bound of
-    # the noise gain are decided for all span counts at once; only the survivors are
-    # factorised, from the most spans down, until one passes.
+    most = most_spans = min(span_count(length, spacing_m), distinct.shape[0] - degree)
+    # The most spans that give a well-posed fit win. On real scans the most spans nearly
+    # always do, so that count is decided directly, from one basis evaluation; only if it
+    # fails are the remaining counts screened all at once (Schoenberg–Whitney and a lower
+    # bound of the noise gain) and the survivors factorised, from the most spans down.
+    if most >= 1:
+        fit = _fit_with_spans(pts, t, inverse, distinct.shape[0], most, degree, max_noise_gain)
+        if isinstance(fit, FitResult):
+            return fit
+        if fit is _REJECTED:
+            most -= 1
     for spans in iter_span_counts(t, distinct, multiplicity, degree, most, max_noise_gain):
         knots = clamped_knots_with_spans(length, spans, degree, start=float(t[0]))
         knots[-degree - 1 :] = t[-1]  # exactly the last parameter, not start + length
@@ -320,5 +342,58 @@ def fit_curve(points: object, degree: int, spacing_m: float, params: object = No
         curve = BSplineCurve.unchecked(phi @ pts, knots, degree)
         return FitResult(curve=curve, phi=phi, params=t)
     raise FitError(
-        f"no degree-{degree} spline with 1..{max(most, 1)} spans fits these {m} points "
+        f"no degree-{degree} spline with 1..{max(most_spans, 1)} spans fits these {m} points "
         "(Schoenberg–Whitney fails: too few distinct points)")
+
+
+def _distinct_sorted(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``np.unique(t, return_counts=True, return_inverse=True)`` for non-decreasing t,
+    without the sort: (d,) distinct values, (d,) their counts, (m,) index of each value."""
+    new = np.empty(t.shape[0], dtype=bool)
+    new[0] = True
+    np.greater(t[1:], t[:-1], out=new[1:])
+    first = np.flatnonzero(new)
+    return t[first], np.diff(np.append(first, t.shape[0])), np.cumsum(new) - 1
+
+
+# What _fit_with_spans returns for a span count that fit_curve's search rejects.
+_REJECTED = object()
+
+
+def _fit_with_spans(pts: np.ndarray, t: np.ndarray, inverse: np.ndarray, d: int, spans: int, degree: int,
+                    max_noise_gain: float | None) -> FitResult | object | None:
+    """The fit on ``spans`` spans; :data:`_REJECTED` where :func:`fit_curve`'s search
+    rejects that count (Schoenberg–Whitney on the distinct parameters, then
+    :func:`least_squares_operator`); None, undecided, if an end span of the knot vector is
+    empty (only for a length below the rounding of the start), where the search's span
+    lookup and :func:`find_span` could differ: the search decides then.
+
+    One basis evaluation at the m parameters serves both tests and the collocation matrix;
+    rows of repeated parameters are identical, so the Schoenberg–Whitney match on them is
+    the one on the distinct parameters.
+
+    Args:
+        pts: (m, 2) data points (m); t: (m,) their non-decreasing parameters (m).
+        inverse: (m,) index of each parameter among the d distinct ones.
+        spans: number of spans ≥ 1; degree: polynomial degree p.
+        max_noise_gain: as in :func:`fit_curve`.
+    """
+    p = degree
+    knots = clamped_knots_with_spans(float(t[-1] - t[0]), spans, p, start=float(t[0]))
+    knots[-p - 1 :] = t[-1]  # exactly the last parameter, not start + length
+    n = spans + p
+    if not (knots[p] < knots[p + 1] and knots[n - 1] < knots[n]):
+        return None
+    # find_span, and the search's lookup, when neither end span is empty
+    span = np.searchsorted(knots, t, side="right") - 1
+    np.clip(span, p, n - 1, out=span)
+    _, values = basis_functions(knots, p, t, span=span)
+    beta = values[0]
+    if not _schoenberg_whitney_holds(span, beta, inverse, d, n, p):
+        return _REJECTED
+    collocation = np.zeros((t.shape[0], n))
+    np.put_along_axis(collocation, span[:, None] - p + np.arange(p + 1), beta, axis=1)
+    phi = least_squares_operator(collocation, max_noise_gain)
+    if phi is None:
+        return _REJECTED
+    return FitResult(curve=BSplineCurve.unchecked(phi @ pts, knots, p), phi=phi, params=t)
