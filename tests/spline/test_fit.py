@@ -221,3 +221,21 @@ def test_schoenberg_whitney_on_repeated_rows_is_that_on_distinct_parameters(degr
     span, values = basis_functions(knots, degree, t)
     got = _schoenberg_whitney_holds(span, values[0], inverse, distinct.shape[0], spans + degree, degree)
     assert got == satisfies_schoenberg_whitney(knots, degree, distinct)
+
+
+@SETTINGS
+@given(n=st.integers(1, 12), k=st.integers(1, 40), fortran=st.booleans(), seed=st.integers(0, 2**32 - 1))
+def test_solve_upper_is_scipy_solve_triangular(n, k, fortran, seed):
+    import scipy.linalg
+
+    from bsslam.spline.fit import _solve_upper
+
+    rng = np.random.default_rng(seed)
+    r = np.triu(rng.normal(size=(n, n))) + 3.0 * np.eye(n)
+    r = np.asfortranarray(r) if fortran else np.ascontiguousarray(r)
+    b = rng.normal(size=(k, n)).T          # a transposed view, as Qᵀ is passed
+    np.testing.assert_array_equal(_solve_upper(r, b), scipy.linalg.solve_triangular(r, b, check_finite=False))
+
+
+def test_chord_length_parameters_of_one_point():
+    np.testing.assert_array_equal(chord_length_parameters([[1.0, 2.0]], start=0.5), [0.5])

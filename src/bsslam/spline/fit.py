@@ -35,8 +35,10 @@ def chord_length_parameters(points: object, start: float = 0.0) -> np.ndarray:
     pts = as_points(points)
     if pts.shape[0] < 1:
         raise SplineError("need at least one point")
-    steps = np.hypot(*np.diff(pts, axis=0).T)
-    return start + np.concatenate([[0.0], np.cumsum(steps)])
+    step = pts[1:] - pts[:-1]
+    cumulative = np.zeros(pts.shape[0])
+    np.cumsum(np.hypot(step[:, 0], step[:, 1]), out=cumulative[1:])
+    return start + cumulative
 
 
 def satisfies_schoenberg_whitney(
@@ -73,9 +75,9 @@ def _schoenberg_whitney_holds(span: np.ndarray, beta: np.ndarray, rows: np.ndarr
         d: number of distinct parameters; n_control: number of basis functions.
         degree: polynomial degree p; columns: the basis functions that must be determined.
     """
-    nonzero = beta > 0
-    basis = (span[:, None] - degree + np.arange(degree + 1))[nonzero]
-    rows = np.broadcast_to(rows[:, None], nonzero.shape)[nonzero]
+    at_row, at_r = np.nonzero(beta > 0)
+    basis = span[at_row] - degree + at_r
+    rows = rows[at_row]
     first = np.full(n_control, d)
     last = np.full(n_control, -1)
     np.minimum.at(first, basis, rows)
@@ -104,10 +106,26 @@ def least_squares_operator(collocation: np.ndarray, max_noise_gain: float | None
     diag = np.abs(np.diag(r))
     if diag.min() <= _RANK_TOLERANCE * diag.max():
         return None
-    phi = scipy.linalg.solve_triangular(r, q.T, check_finite=False)
+    phi = _solve_upper(r, q.T)
     if max_noise_gain is not None and np.max(np.einsum("ij,ij->i", phi, phi)) > max_noise_gain ** 2:
         return None
     return phi
+
+
+def _solve_upper(r: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``scipy.linalg.solve_triangular(r, b, check_finite=False)`` for an upper triangular
+    float64 (n, n) r and (n, k) b: the same LAPACK call (so the same result) without the
+    wrapper's validation, which costs more than the solve at the sizes fits have."""
+    if r.flags.f_contiguous:
+        x, info = _DTRTRS(r, b, overwrite_b=False, lower=False, trans=0, unitdiag=False)
+    else:  # as solve_triangular does: trtrs wants Fortran order, so solve the transpose
+        x, info = _DTRTRS(r.T, b, overwrite_b=False, lower=True, trans=1, unitdiag=False)
+    if info != 0:  # pragma: no cover - the caller has checked the diagonal
+        raise np.linalg.LinAlgError(f"trtrs failed: info = {info}")
+    return x
+
+
+_DTRTRS = scipy.linalg.get_lapack_funcs("trtrs", (np.zeros((1, 1)),))
 
 
 def check_params(params: object, m: int) -> np.ndarray:
@@ -349,11 +367,19 @@ def fit_curve(points: object, degree: int, spacing_m: float, params: object = No
 def _distinct_sorted(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``np.unique(t, return_counts=True, return_inverse=True)`` for non-decreasing t,
     without the sort: (d,) distinct values, (d,) their counts, (m,) index of each value."""
-    new = np.empty(t.shape[0], dtype=bool)
+    m = t.shape[0]
+    new = np.empty(m, dtype=bool)
     new[0] = True
     np.greater(t[1:], t[:-1], out=new[1:])
+    inverse = np.cumsum(new)
+    inverse -= 1
+    if inverse[-1] == m - 1:  # all distinct, the usual case for chord lengths of scan points
+        return t, np.ones(m, dtype=np.intp), inverse
     first = np.flatnonzero(new)
-    return t[first], np.diff(np.append(first, t.shape[0])), np.cumsum(new) - 1
+    counts = np.empty(first.shape[0], dtype=np.intp)
+    counts[:-1] = first[1:] - first[:-1]
+    counts[-1] = m - first[-1]
+    return t[first], counts, inverse
 
 
 # What _fit_with_spans returns for a span count that fit_curve's search rejects.
