@@ -239,3 +239,20 @@ def test_solve_upper_is_scipy_solve_triangular(n, k, fortran, seed):
 
 def test_chord_length_parameters_of_one_point():
     np.testing.assert_array_equal(chord_length_parameters([[1.0, 2.0]], start=0.5), [0.5])
+
+
+@SETTINGS
+@given(n=st.integers(1, 10), extra=st.integers(0, 30), seed=st.integers(0, 2**32 - 1))
+def test_qr_reduced_is_numpys_reduced_qr(n, extra, seed):
+    """Q and R's upper triangle as numpy's (the same LAPACK routines), square case included,
+    and the input left alone."""
+    from bsslam.spline.fit import _qr_reduced
+
+    a = np.random.default_rng(seed).normal(size=(n + extra, n))
+    before = a.copy()
+    q, r = _qr_reduced(a)
+    q_ref, r_ref = np.linalg.qr(a)
+    np.testing.assert_array_equal(a, before)
+    assert q.shape == (n + extra, n) and r.shape == (n, n) and r.flags.c_contiguous
+    np.testing.assert_allclose(q, q_ref, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(np.triu(r), r_ref, rtol=0, atol=1e-13 * np.abs(r_ref).max())

@@ -35,6 +35,11 @@ def chord_length_parameters(points: object, start: float = 0.0) -> np.ndarray:
     pts = as_points(points)
     if pts.shape[0] < 1:
         raise SplineError("need at least one point")
+    return _chord_lengths(pts, start)
+
+
+def _chord_lengths(pts: np.ndarray, start: float = 0.0) -> np.ndarray:
+    """:func:`chord_length_parameters` of checked (m, 2) float64 points, m ≥ 1."""
     step = pts[1:] - pts[:-1]
     cumulative = np.zeros(pts.shape[0])
     np.cumsum(np.hypot(step[:, 0], step[:, 1]), out=cumulative[1:])
@@ -102,7 +107,7 @@ def least_squares_operator(collocation: np.ndarray, max_noise_gain: float | None
     m, n = collocation.shape
     if m < n:
         return None
-    q, r = np.linalg.qr(collocation)
+    q, r = _qr_reduced(collocation)
     diag = np.abs(np.diag(r))
     if diag.min() <= _RANK_TOLERANCE * diag.max():
         return None
@@ -110,6 +115,21 @@ def least_squares_operator(collocation: np.ndarray, max_noise_gain: float | None
     if max_noise_gain is not None and np.max(np.einsum("ij,ij->i", phi, phi)) > max_noise_gain ** 2:
         return None
     return phi
+
+
+def _qr_reduced(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.linalg.qr(a)`` (reduced) of a float64 (m, n) a, m ≥ n: (m, n) Q and C-ordered
+    (n, n) R, whose strictly lower triangle is left holding Householder vectors (only the
+    upper triangle is ever read). The same Householder LAPACK routines (geqrf, orgqr),
+    called directly: numpy's wrapper costs more than the factorisation at fit sizes."""
+    qr, tau, _, info = _DGEQRF(a)
+    if info != 0:  # pragma: no cover - only for malformed arguments
+        raise np.linalg.LinAlgError(f"geqrf failed: info = {info}")
+    r = np.array(qr[: a.shape[1]], order="C")  # a copy even when it is all of qr: orgqr overwrites qr
+    q, _, info = _DORGQR(qr, tau, overwrite_a=True)
+    if info != 0:  # pragma: no cover
+        raise np.linalg.LinAlgError(f"orgqr failed: info = {info}")
+    return q, r
 
 
 def _solve_upper(r: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -125,7 +145,7 @@ def _solve_upper(r: np.ndarray, b: np.ndarray) -> np.ndarray:
     return x
 
 
-_DTRTRS = scipy.linalg.get_lapack_funcs("trtrs", (np.zeros((1, 1)),))
+_DTRTRS, _DGEQRF, _DORGQR = scipy.linalg.get_lapack_funcs(("trtrs", "geqrf", "orgqr"), (np.zeros((1, 1)),))
 
 
 def check_params(params: object, m: int) -> np.ndarray:
@@ -334,7 +354,7 @@ def fit_curve(points: object, degree: int, spacing_m: float, params: object = No
     m = pts.shape[0]
     if m < degree + 1:
         raise FitError(f"a degree-{degree} fit needs at least {degree + 1} points, got {m}")
-    t = chord_length_parameters(pts) if params is None else check_params(params, m)
+    t = _chord_lengths(pts) if params is None else check_params(params, m)
     length = float(t[-1] - t[0])
     if not length > 0:
         raise FitError("all points share one parameter (coincident points); nothing to fit")
@@ -405,20 +425,26 @@ def _fit_with_spans(pts: np.ndarray, t: np.ndarray, inverse: np.ndarray, d: int,
         max_noise_gain: as in :func:`fit_curve`.
     """
     p = degree
-    knots = clamped_knots_with_spans(float(t[-1] - t[0]), spans, p, start=float(t[0]))
-    knots[-p - 1 :] = t[-1]  # exactly the last parameter, not start + length
     n = spans + p
+    # clamped_knots_with_spans(length, spans, p, start) with the exact last parameter as
+    # its end, bit for bit, without the argument checks (fit_curve has made them)
+    start = float(t[0])
+    knots = np.empty(n + p + 1)
+    knots[: p + 1] = start
+    knots[p + 1 : n] = start + float(t[-1] - t[0]) * (np.arange(1, spans) / spans)
+    knots[n:] = t[-1]
     if not (knots[p] < knots[p + 1] and knots[n - 1] < knots[n]):
         return None
     # find_span, and the search's lookup, when neither end span is empty
     span = np.searchsorted(knots, t, side="right") - 1
-    np.clip(span, p, n - 1, out=span)
+    np.maximum(span, p, out=span)
+    np.minimum(span, n - 1, out=span)
     _, values = basis_functions(knots, p, t, span=span)
     beta = values[0]
     if not _schoenberg_whitney_holds(span, beta, inverse, d, n, p):
         return _REJECTED
     collocation = np.zeros((t.shape[0], n))
-    np.put_along_axis(collocation, span[:, None] - p + np.arange(p + 1), beta, axis=1)
+    collocation[np.arange(t.shape[0])[:, None], span[:, None] - p + np.arange(p + 1)] = beta
     phi = least_squares_operator(collocation, max_noise_gain)
     if phi is None:
         return _REJECTED
