@@ -211,7 +211,8 @@ def test_distinct_sorted_is_unique_of_a_sorted_array(m, seed):
 @given(degree=st.integers(1, 4), m=st.integers(6, 80), spans=st.integers(1, 12), seed=st.integers(0, 2**32 - 1))
 def test_schoenberg_whitney_on_repeated_rows_is_that_on_distinct_parameters(degree, m, spans, seed):
     from bsslam.spline import basis_functions
-    from bsslam.spline.fit import _distinct_sorted, _schoenberg_whitney_holds, satisfies_schoenberg_whitney
+    from bsslam.spline.fit import (_distinct_sorted, _schoenberg_whitney_dense, _schoenberg_whitney_holds,
+                                   satisfies_schoenberg_whitney)
     from bsslam.spline.knots import clamped_knots_with_spans
 
     t = _clustered_params(np.random.default_rng(seed), m)
@@ -220,7 +221,10 @@ def test_schoenberg_whitney_on_repeated_rows_is_that_on_distinct_parameters(degr
     distinct, _, inverse = _distinct_sorted(t)
     span, values = basis_functions(knots, degree, t)
     got = _schoenberg_whitney_holds(span, values[0], inverse, distinct.shape[0], spans + degree, degree)
-    assert got == satisfies_schoenberg_whitney(knots, degree, distinct)
+    want = satisfies_schoenberg_whitney(knots, degree, distinct)
+    assert got == want
+    dense = _schoenberg_whitney_dense(collocation_matrix(knots, degree, t), inverse)
+    assert dense == want
 
 
 @SETTINGS

@@ -95,6 +95,26 @@ def _schoenberg_whitney_holds(span: np.ndarray, beta: np.ndarray, rows: np.ndarr
     return bool(np.all(matched <= last))
 
 
+def _schoenberg_whitney_dense(collocation: np.ndarray, rows: np.ndarray) -> bool:
+    """:func:`_schoenberg_whitney_holds` for all columns of a dense collocation matrix.
+
+    Args:
+        collocation: (m, n) basis values at m sorted parameters (zero off each row's span).
+        rows: (m,) index of each parameter among the distinct ones, non-decreasing.
+
+    The rows are sorted, so each column's first and last positive row give its first and
+    last datum: two argmax calls instead of scattered minima and maxima.
+    """
+    positive = collocation > 0
+    if not positive.any(axis=0).all():
+        return False
+    m = positive.shape[0]
+    first = rows[positive.argmax(axis=0)]
+    last = rows[m - 1 - positive[::-1].argmax(axis=0)]
+    k = np.arange(first.shape[0])
+    return bool(np.all(k + np.maximum.accumulate(first - k) <= last))
+
+
 def least_squares_operator(collocation: np.ndarray, max_noise_gain: float | None = None) -> np.ndarray | None:
     """``(BᵀB)⁻¹Bᵀ`` for an (m, n) collocation matrix B, by QR; None if B is rank deficient
     or, with ``max_noise_gain``, if some row of the result has a larger 2-norm.
@@ -440,11 +460,10 @@ def _fit_with_spans(pts: np.ndarray, t: np.ndarray, inverse: np.ndarray, d: int,
     np.maximum(span, p, out=span)
     np.minimum(span, n - 1, out=span)
     _, values = basis_functions(knots, p, t, span=span)
-    beta = values[0]
-    if not _schoenberg_whitney_holds(span, beta, inverse, d, n, p):
-        return _REJECTED
     collocation = np.zeros((t.shape[0], n))
-    collocation[np.arange(t.shape[0])[:, None], span[:, None] - p + np.arange(p + 1)] = beta
+    collocation[np.arange(t.shape[0])[:, None], span[:, None] - p + np.arange(p + 1)] = values[0]
+    if not _schoenberg_whitney_dense(collocation, inverse):
+        return _REJECTED
     phi = least_squares_operator(collocation, max_noise_gain)
     if phi is None:
         return _REJECTED
