@@ -382,15 +382,19 @@ def fit_curve(points: object, degree: int, spacing_m: float, params: object = No
     # n_control = spans + degree can never exceed the number of distinct parameters.
     most = most_spans = min(span_count(length, spacing_m), distinct.shape[0] - degree)
     # The most spans that give a well-posed fit win. On real scans the most spans nearly
-    # always do, so that count is decided directly, from one basis evaluation; only if it
-    # fails are the remaining counts screened all at once (Schoenberg–Whitney and a lower
-    # bound of the noise gain) and the survivors factorised, from the most spans down.
-    if most >= 1:
+    # always do (and else one or two fewer), so the first few counts are decided directly,
+    # each from one basis evaluation; only if they all fail are the remaining counts
+    # screened at once (Schoenberg–Whitney and a lower bound of the noise gain) and the
+    # survivors factorised, from the most spans down.
+    for _ in range(_DIRECT_TRIES):
+        if most < 1:
+            break
         fit = _fit_with_spans(pts, t, inverse, distinct.shape[0], most, degree, max_noise_gain)
         if isinstance(fit, FitResult):
             return fit
-        if fit is _REJECTED:
-            most -= 1
+        if fit is not _REJECTED:  # undecided: the search decides this count and the rest
+            break
+        most -= 1
     for spans in iter_span_counts(t, distinct, multiplicity, degree, most, max_noise_gain):
         knots = clamped_knots_with_spans(length, spans, degree, start=float(t[0]))
         knots[-degree - 1 :] = t[-1]  # exactly the last parameter, not start + length
@@ -421,6 +425,12 @@ def _distinct_sorted(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     counts[-1] = m - first[-1]
     return t[first], counts, inverse
 
+
+# Span counts fit_curve decides one by one before it screens all the others at once: one
+# direct decision costs about a tenth of the screen's setup, and in refined fits (half the
+# knot spacing) the most spans fail about one time in five, nearly always for one or two
+# counts only.
+_DIRECT_TRIES = 3
 
 # What _fit_with_spans returns for a span count that fit_curve's search rejects.
 _REJECTED = object()
