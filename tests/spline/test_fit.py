@@ -260,3 +260,20 @@ def test_qr_reduced_is_numpys_reduced_qr(n, extra, seed):
     assert q.shape == (n + extra, n) and r.shape == (n, n) and r.flags.c_contiguous
     np.testing.assert_allclose(q, q_ref, rtol=0, atol=1e-13)
     np.testing.assert_allclose(np.triu(r), r_ref, rtol=0, atol=1e-13 * np.abs(r_ref).max())
+
+
+def test_a_knot_vector_with_an_empty_end_span_is_left_to_the_search():
+    """Parameters a few ulps apart far from 0: with many spans the first interior knot
+    rounds onto the start and the direct decision declines (None: fit_curve then leaves
+    that count to the search); at the finest spacing fit_curve still returns what the full
+    search returns."""
+    from bsslam.spline.fit import _distinct_sorted, _fit_with_spans
+
+    t = 1.0 + np.arange(8) * np.spacing(1.0)
+    pts = np.column_stack([np.arange(8.0), np.sin(np.arange(8.0))])
+    _, _, inverse = _distinct_sorted(t)
+    assert _fit_with_spans(pts, t, inverse, 8, 100, 3, None) is None
+    want = _fit_by_full_search(pts, 1, float(np.spacing(1.0)) / 4, t, None)
+    got = fit_curve(pts, 1, float(np.spacing(1.0)) / 4, params=t)
+    np.testing.assert_array_equal(got.curve.knots, want[0])
+    np.testing.assert_array_equal(got.phi, want[1])
