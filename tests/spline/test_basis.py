@@ -103,7 +103,8 @@ def test_values_alone_are_the_triangle_column_bit_for_bit(case, seed):
     degree, knots = case
     t = domain_samples(knots, degree, np.random.default_rng(seed))
     span = find_span(knots, degree, t)
-    np.testing.assert_array_equal(_basis_values(knots, degree, t, span), _basis_triangle(knots, degree, t, span)[:, degree])
+    np.testing.assert_array_equal(_basis_values(knots, degree, t, span),
+                                  _basis_triangle(knots, degree, t, span)[:, degree])
     np.testing.assert_array_equal(basis_functions(knots, degree, t)[1][0], basis_functions(knots, degree, t, 1)[1][0])
 
 
