@@ -6,7 +6,8 @@ then each is passed ``--repeat`` times through
 
 - ``segment``: valid beams → points → segmentation (``bsslam.scan.segment``), and
 - ``extract``: the same plus one least-squares spline per segment (``extract_splines``,
-  cubic, knot spacing from the default configuration),
+  cubic, knot spacing from the default configuration), and
+- ``fit``: ``fit_curve`` alone on those segments' points (per call),
 
 single-threaded. Reported: the median over scans of each scan's best time (the best of
 the repeats filters out scheduler noise; the median over scans is the typical scan), the
@@ -33,7 +34,9 @@ import numpy as np  # noqa: E402
 
 from bsslam.config import SLAMConfig  # noqa: E402
 from bsslam.io.carmen import CarmenReader  # noqa: E402
+from bsslam.errors import FitError  # noqa: E402
 from bsslam.scan import beams_to_points, extract_splines, segment_points, valid_beams  # noqa: E402
+from bsslam.spline import fit_curve  # noqa: E402
 
 DEFAULT_LOG = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "intel" / "intel-rawodom.clf"
 
@@ -45,8 +48,17 @@ def segment_only(scan, config: SLAMConfig) -> list[np.ndarray]:
     return segment_points(points, config.segmentation, beam_index=beam_index)
 
 
+def _fit_or_none(points: np.ndarray, config: SLAMConfig):
+    """``fit_curve`` as ``extract_splines`` calls it; None where it fails."""
+    try:
+        return fit_curve(points, config.spline.degree, config.spline.knot_spacing_m,
+                         max_noise_gain=config.spline.max_noise_gain)
+    except FitError:
+        return None
+
+
 def per_scan_best_ms(call, scans, repeat: int) -> list[float]:
-    """For each scan, the fastest of ``repeat`` calls (ms)."""
+    """For each scan (or other argument), the fastest of ``repeat`` calls (ms)."""
     best = []
     for scan in scans:
         times = []
@@ -74,6 +86,10 @@ def main() -> None:
 
     seg_ms = per_scan_best_ms(lambda s: segment_only(s, config), scans, args.repeat)
     ext_ms = per_scan_best_ms(lambda s: extract_splines(s, config), scans, args.repeat)
+    runs = [beams_to_points(s.angles[mask], s.ranges[mask])[rows]
+            for s in scans for mask in [valid_beams(s, config.segmentation)[0]]
+            for rows in segment_only(s, config)]
+    fit_us = [1e3 * t for t in per_scan_best_ms(lambda pts: _fit_or_none(pts, config), runs, args.repeat)]
     segments = [len(segment_only(s, config)) for s in scans]
     splines = [len(extract_splines(s, config).splines) for s in scans]
 
@@ -82,6 +98,8 @@ def main() -> None:
     print(f"  segment  median {statistics.median(seg_ms):.3f} ms/scan   mean {statistics.fmean(seg_ms):.3f} ms")
     print(f"  extract  median {statistics.median(ext_ms):.3f} ms/scan   mean {statistics.fmean(ext_ms):.3f} ms"
           f"   (target < 2 ms)")
+    print(f"  fit      median {statistics.median(fit_us):.1f} µs/call   mean {statistics.fmean(fit_us):.1f} µs"
+          f"   ({len(runs)} segments)")
     print(f"  per scan: {statistics.fmean(segments):.2f} segments, {statistics.fmean(splines):.2f} splines")
 
 

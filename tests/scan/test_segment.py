@@ -189,3 +189,16 @@ def test_segments_are_ordered_disjoint_runs_that_meet_the_limits(seed, m, window
         assert rows.shape[0] >= CFG.min_points
         assert edges.sum() >= CFG.min_length_m
         assert np.all(edges <= CFG.max_gap_m)
+
+
+@settings(max_examples=60, deadline=None)
+@given(m=st.integers(1, 60), t=st.integers(0, 30), seed=st.integers(0, 2**32 - 1))
+def test_window_max_is_the_maximum_of_each_window(m, t, seed):
+    from bsslam.scan.segment import _window_max
+
+    rng = np.random.default_rng(seed)
+    values = rng.uniform(0.0, 3.0, m)
+    lo = rng.integers(0, m, t)
+    hi = np.minimum(lo + rng.integers(0, 12, t), m - 1)
+    want = np.array([values[a:b + 1].max() for a, b in zip(lo, hi)])
+    np.testing.assert_array_equal(_window_max(values, lo, hi), want.reshape(t))

@@ -94,6 +94,20 @@ def test_collocation_matrix_equals_scipy_design_matrix(case, seed):
     np.testing.assert_allclose(sparse.toarray(), ref, rtol=0, atol=1e-13)
 
 
+@SETTINGS
+@given(case=knot_vectors(), seed=st.integers(0, 2**32 - 1))
+def test_values_alone_are_the_triangle_column_bit_for_bit(case, seed):
+    """The values-only path (nder = 0) repeats the full triangle's operations exactly."""
+    from bsslam.spline.basis import _basis_triangle, _basis_values
+
+    degree, knots = case
+    t = domain_samples(knots, degree, np.random.default_rng(seed))
+    span = find_span(knots, degree, t)
+    np.testing.assert_array_equal(_basis_values(knots, degree, t, span),
+                                  _basis_triangle(knots, degree, t, span)[:, degree])
+    np.testing.assert_array_equal(basis_functions(knots, degree, t)[1][0], basis_functions(knots, degree, t, 1)[1][0])
+
+
 def test_find_span_at_ends_outside_and_repeated_knots():
     knots = np.array([0.0, 0.0, 0.0, 1.0, 2.0, 2.0, 3.0, 3.0, 3.0])  # degree 2, knot 2 doubled
     t = np.array([-5.0, 0.0, 0.5, 1.0, 2.0, 2.5, 3.0, 9.0, np.nan])

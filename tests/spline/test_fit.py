@@ -154,3 +154,126 @@ def test_candidate_span_counts_keep_every_count_the_one_by_one_search_accepts(de
             assert spans in got                  # the screen never drops a count that passes
         elif not sw:
             assert spans not in got
+
+
+def _fit_by_full_search(points, degree, spacing, t, gain):
+    """fit_curve as it was first written (the oracle): screen every span count, then
+    factorise the survivors from the most spans down; (n_control, knots, Φ) or None."""
+    from bsslam.spline.fit import iter_span_counts, least_squares_operator
+    from bsslam.spline.knots import clamped_knots_with_spans, span_count
+
+    distinct, mult = np.unique(t, return_counts=True)
+    length = float(t[-1] - t[0])
+    most = min(span_count(length, spacing), distinct.shape[0] - degree)
+    for spans in iter_span_counts(t, distinct, mult, degree, most, gain):
+        knots = clamped_knots_with_spans(length, spans, degree, start=float(t[0]))
+        knots[-degree - 1:] = t[-1]
+        phi = least_squares_operator(collocation_matrix(knots, degree, t), gain)
+        if phi is not None:
+            return knots, phi
+    return None
+
+
+@SETTINGS
+@given(degree=st.integers(1, 4), m=st.integers(5, 120), spacing=st.floats(0.05, 1.0),
+       gain=st.sampled_from([None, 1.5, 3.0, 10.0]), seed=st.integers(0, 2**32 - 1))
+def test_fit_curve_chooses_and_solves_as_the_full_search(degree, m, spacing, gain, seed):
+    """Deciding the most spans first and searching the rest only if they fail gives the full
+    search's span count, knots and Φ, bit for bit (or the same FitError)."""
+    rng = np.random.default_rng(seed)
+    t = _clustered_params(rng, m)
+    pts = rng.normal(size=(m, 2))
+    want = _fit_by_full_search(pts, degree, spacing, t, gain)
+    if want is None:
+        with pytest.raises(FitError):
+            fit_curve(pts, degree, spacing, params=t, max_noise_gain=gain)
+        return
+    got = fit_curve(pts, degree, spacing, params=t, max_noise_gain=gain)
+    np.testing.assert_array_equal(got.curve.knots, want[0])
+    np.testing.assert_array_equal(got.phi, want[1])
+    np.testing.assert_array_equal(got.curve.control_points, want[1] @ pts)
+
+
+@SETTINGS
+@given(m=st.integers(1, 60), seed=st.integers(0, 2**32 - 1))
+def test_distinct_sorted_is_unique_of_a_sorted_array(m, seed):
+    from bsslam.spline.fit import _distinct_sorted
+
+    t = np.sort(np.round(np.random.default_rng(seed).uniform(0, 3, m), 1))
+    got = _distinct_sorted(t)
+    want = np.unique(t, return_counts=True, return_inverse=True)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[2])
+    np.testing.assert_array_equal(got[2], want[1])
+
+
+@SETTINGS
+@given(degree=st.integers(1, 4), m=st.integers(6, 80), spans=st.integers(1, 12), seed=st.integers(0, 2**32 - 1))
+def test_schoenberg_whitney_on_repeated_rows_is_that_on_distinct_parameters(degree, m, spans, seed):
+    from bsslam.spline import basis_functions
+    from bsslam.spline.fit import (_distinct_sorted, _schoenberg_whitney_dense, _schoenberg_whitney_holds,
+                                   satisfies_schoenberg_whitney)
+    from bsslam.spline.knots import clamped_knots_with_spans
+
+    t = _clustered_params(np.random.default_rng(seed), m)
+    knots = clamped_knots_with_spans(float(t[-1] - t[0]), spans, degree, start=float(t[0]))
+    knots[-degree - 1:] = t[-1]
+    distinct, _, inverse = _distinct_sorted(t)
+    span, values = basis_functions(knots, degree, t)
+    got = _schoenberg_whitney_holds(span, values[0], inverse, distinct.shape[0], spans + degree, degree)
+    want = satisfies_schoenberg_whitney(knots, degree, distinct)
+    assert got == want
+    dense = _schoenberg_whitney_dense(collocation_matrix(knots, degree, t), inverse)
+    assert dense == want
+
+
+@SETTINGS
+@given(n=st.integers(1, 12), k=st.integers(1, 40), fortran=st.booleans(), seed=st.integers(0, 2**32 - 1))
+def test_solve_upper_is_scipy_solve_triangular(n, k, fortran, seed):
+    import scipy.linalg
+
+    from bsslam.spline.fit import _solve_upper
+
+    rng = np.random.default_rng(seed)
+    r = np.triu(rng.normal(size=(n, n))) + 3.0 * np.eye(n)
+    r = np.asfortranarray(r) if fortran else np.ascontiguousarray(r)
+    b = rng.normal(size=(k, n)).T          # a transposed view, as Qᵀ is passed
+    np.testing.assert_array_equal(_solve_upper(r, b), scipy.linalg.solve_triangular(r, b, check_finite=False))
+
+
+def test_chord_length_parameters_of_one_point():
+    np.testing.assert_array_equal(chord_length_parameters([[1.0, 2.0]], start=0.5), [0.5])
+
+
+@SETTINGS
+@given(n=st.integers(1, 10), extra=st.integers(0, 30), seed=st.integers(0, 2**32 - 1))
+def test_qr_reduced_is_numpys_reduced_qr(n, extra, seed):
+    """Q and R's upper triangle as numpy's (the same LAPACK routines), square case included,
+    and the input left alone."""
+    from bsslam.spline.fit import _qr_reduced
+
+    a = np.random.default_rng(seed).normal(size=(n + extra, n))
+    before = a.copy()
+    q, r = _qr_reduced(a)
+    q_ref, r_ref = np.linalg.qr(a)
+    np.testing.assert_array_equal(a, before)
+    assert q.shape == (n + extra, n) and r.shape == (n, n) and r.flags.c_contiguous
+    np.testing.assert_allclose(q, q_ref, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(np.triu(r), r_ref, rtol=0, atol=1e-13 * np.abs(r_ref).max())
+
+
+def test_a_knot_vector_with_an_empty_end_span_is_left_to_the_search():
+    """Parameters a few ulps apart far from 0: with many spans the first interior knot
+    rounds onto the start and the direct decision declines (None: fit_curve then leaves
+    that count to the search); at the finest spacing fit_curve still returns what the full
+    search returns."""
+    from bsslam.spline.fit import _distinct_sorted, _fit_with_spans
+
+    t = 1.0 + np.arange(8) * np.spacing(1.0)
+    pts = np.column_stack([np.arange(8.0), np.sin(np.arange(8.0))])
+    _, _, inverse = _distinct_sorted(t)
+    assert _fit_with_spans(pts, t, inverse, 8, 100, 3, None) is None
+    want = _fit_by_full_search(pts, 1, float(np.spacing(1.0)) / 4, t, None)
+    got = fit_curve(pts, 1, float(np.spacing(1.0)) / 4, params=t)
+    np.testing.assert_array_equal(got.curve.knots, want[0])
+    np.testing.assert_array_equal(got.phi, want[1])

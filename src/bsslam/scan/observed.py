@@ -70,14 +70,15 @@ def extract_splines(scan: LaserScan, config: SLAMConfig) -> ScanFeatures:
     splines = []
     fit_failed = 0
     for rows in segments:  # a handful of segments per scan; the fit itself is vectorised
+        run = points[rows]
         try:
-            fit = fit_curve(points[rows], config.spline.degree, config.spline.knot_spacing_m,
+            fit = fit_curve(run, config.spline.degree, config.spline.knot_spacing_m,
                             max_noise_gain=config.spline.max_noise_gain)
         except FitError:
             fit_failed += 1
             continue
         splines.append(ObservedSpline(curve=fit.curve, phi=fit.phi, beam_indices=beam_indices[rows],
-                                      params=fit.params, points=points[rows], ranges=ranges[rows],
+                                      params=fit.params, points=run, ranges=ranges[rows],
                                       angles=angles[rows]))
     counts["fit_failed"] = fit_failed
     counts["splines"] = len(splines)

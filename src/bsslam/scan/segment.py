@@ -251,9 +251,13 @@ def _direction_breaks(points: np.ndarray, moments: np.ndarray, edge_len: np.ndar
                            np.concatenate((points[idx] - points[lo], points[hi] - points[idx])))
     before, after = axes[:t], axes[t:]
     turn = np.abs(np.arctan2(_cross(before, after), np.einsum("ij,ij->i", before, after)))
+    over = np.flatnonzero(turn > alpha_max_rad)
+    if over.shape[0] == 0:  # the usual last pass: nothing turns enough
+        return idx[:0]
     full = np.zeros(points.shape[0])
     full[idx] = turn
-    worst = np.flatnonzero((turn > alpha_max_rad) & (turn >= _window_max(full, lo, hi)))
+    # non-maximum suppression, needed only where the turn is large enough to matter
+    worst = over[turn[over] >= _window_max(full, lo[over], hi[over])]
     # The break point stays with the side whose line it lies closer to: each side's line
     # has that side's axis through the centroid of its other points. Tested points are
     # never run ends, so both windows hold other points and both edges exist.
@@ -303,22 +307,21 @@ def _chord_length(points: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarra
 
 
 def _window_max(values: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Maximum of ``values[lo[j]:hi[j]+1]`` for every j, by a sparse table: level k holds
-    the maxima over ``[i, i + 2^k)``, and any window is covered by two such blocks.
+    """Maximum of ``values[lo[j]:hi[j]+1]`` for every j (one ``np.maximum.reduceat``).
 
     Args:
-        values: (m,) values ≥ 0 (the padding is 0).
+        values: (m,) values.
         lo, hi: (t,) inclusive window bounds, 0 ≤ lo ≤ hi < m.
 
     Returns:
         (t,) window maxima.
     """
-    m = values.shape[0]
-    levels = max(1, int(m).bit_length())
-    table = np.zeros((levels, m))
-    table[0] = values
-    for k in range(1, levels):  # log2(m) vectorised levels
-        width = 1 << (k - 1)
-        table[k, : m - width] = np.maximum(table[k - 1, : m - width], table[k - 1, width:])
-    level = np.log2(hi - lo + 1).astype(int)
-    return np.maximum(table[level, lo], table[level, hi - (1 << level) + 1])
+    if lo.shape[0] == 0:
+        return np.zeros(0)
+    # one reduceat over the slices [lo_j, hi_j + 1) (each non-empty); the slices that
+    # reduceat makes between consecutive windows are discarded. The appended 0 makes
+    # hi + 1 = m a valid index; it lies in no window.
+    bounds = np.empty(2 * lo.shape[0], dtype=np.intp)
+    bounds[0::2] = lo
+    bounds[1::2] = hi + 1
+    return np.maximum.reduceat(np.append(values, 0.0), bounds)[0::2]

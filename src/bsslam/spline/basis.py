@@ -75,6 +75,36 @@ def _basis_triangle(knots: np.ndarray, degree: int, t: np.ndarray, span: np.ndar
     return ndu
 
 
+def _basis_values(knots: np.ndarray, degree: int, t: np.ndarray, span: np.ndarray) -> np.ndarray:
+    """The degree + 1 non-zero basis functions on each parameter's span, shape (degree+1, m):
+    column ``degree`` of :func:`_basis_triangle`, bit for bit, with fewer numpy calls.
+
+    Piegl & Tiller A2.2 with its inner loop over r vectorised: at degree j every new value
+    is ``right[r+1]·temp[r] + left[j-r]·temp[r-1]`` with ``temp[r] = N[r] / (right[r+1] +
+    left[j-r])`` — the same operations on the same operands as the triangle, so the same
+    floating-point results, in about 7 calls per degree instead of 5 per (degree, r).
+    """
+    p = degree
+    m = t.shape[0]
+    # knots[span + o] for o = 1-p … p, one gather: left[j-1] = t - knots[span+1-j],
+    # right[j-1] = knots[span+j] - t (j = 1 … p)
+    near = knots[span[None, :] + np.arange(1 - p, p + 1)[:, None]]     # (2p, m)
+    left = t - near[p - 1::-1]                                          # (p, m): left[j-1]
+    right = near[p:] - t                                                # (p, m): right[j-1]
+    n = np.empty((p + 1, m))
+    n[0] = 1.0
+    for j in range(1, p + 1):
+        # r = 0 … j-1: denominators right[r+1] + left[j-r]
+        reversed_left = left[j - 1::-1]             # left[j-r] for r = 0 … j-1
+        temp = n[:j] / (right[:j] + reversed_left)
+        up = right[:j] * temp                       # right[r+1]·temp[r]
+        down = reversed_left * temp                 # left[j-r]·temp[r]: the next r's "saved"
+        n[j] = down[j - 1]
+        n[1:j] = down[: j - 1] + up[1:]
+        n[0] = up[0]
+    return n
+
+
 def _derivatives_from_triangle(ndu: np.ndarray, degree: int, nder: int) -> np.ndarray:
     """Derivatives 0 … nder of the non-zero basis functions, shape (nder+1, degree+1, m).
 
@@ -147,6 +177,8 @@ def basis_functions(
         t = np.clip(t, knots[degree], knots[-degree - 1])
     else:
         span = np.asarray(span, dtype=np.intp).reshape(t.shape)
+    if nder == 0:  # the values only (what fits evaluate): no triangle kept
+        return span, np.ascontiguousarray(_basis_values(knots, degree, t, span).T)[None]
     ndu = _basis_triangle(knots, degree, t, span)
     ders = _derivatives_from_triangle(ndu, degree, nder)
     return span, np.ascontiguousarray(ders.transpose(0, 2, 1))

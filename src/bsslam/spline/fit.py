@@ -35,8 +35,15 @@ def chord_length_parameters(points: object, start: float = 0.0) -> np.ndarray:
     pts = as_points(points)
     if pts.shape[0] < 1:
         raise SplineError("need at least one point")
-    steps = np.hypot(*np.diff(pts, axis=0).T)
-    return start + np.concatenate([[0.0], np.cumsum(steps)])
+    return _chord_lengths(pts, start)
+
+
+def _chord_lengths(pts: np.ndarray, start: float = 0.0) -> np.ndarray:
+    """:func:`chord_length_parameters` of checked (m, 2) float64 points, m ≥ 1."""
+    step = pts[1:] - pts[:-1]
+    cumulative = np.zeros(pts.shape[0])
+    np.cumsum(np.hypot(step[:, 0], step[:, 1]), out=cumulative[1:])
+    return start + cumulative
 
 
 def satisfies_schoenberg_whitney(
@@ -56,12 +63,27 @@ def satisfies_schoenberg_whitney(
         columns: which basis functions must be determined by the data.
     """
     span, values = basis_functions(knots, degree, params)
-    n_control = knots.shape[0] - degree - 1
     m = params.shape[0]
-    nonzero = values[0] > 0
-    basis = (span[:, None] - degree + np.arange(degree + 1))[nonzero]
-    rows = np.broadcast_to(np.arange(m)[:, None], nonzero.shape)[nonzero]
-    first = np.full(n_control, m)
+    return _schoenberg_whitney_holds(span, values[0], np.arange(m), m, knots.shape[0] - degree - 1, degree,
+                                     columns)
+
+
+def _schoenberg_whitney_holds(span: np.ndarray, beta: np.ndarray, rows: np.ndarray, d: int, n_control: int,
+                              degree: int, columns: slice = slice(None)) -> bool:
+    """Schoenberg–Whitney decided from basis values already evaluated (the greedy match of
+    :func:`satisfies_schoenberg_whitney`).
+
+    Args:
+        span: (r,) knot span of each evaluated parameter; beta: (r, degree+1) its basis values.
+        rows: (r,) index of each evaluated parameter among the d distinct ones, non-decreasing
+            (rows of repeated parameters hold identical values, so they may all be given).
+        d: number of distinct parameters; n_control: number of basis functions.
+        degree: polynomial degree p; columns: the basis functions that must be determined.
+    """
+    at_row, at_r = np.nonzero(beta > 0)
+    basis = span[at_row] - degree + at_r
+    rows = rows[at_row]
+    first = np.full(n_control, d)
     last = np.full(n_control, -1)
     np.minimum.at(first, basis, rows)
     np.maximum.at(last, basis, rows)
@@ -71,6 +93,26 @@ def satisfies_schoenberg_whitney(
     k = np.arange(first.shape[0])
     matched = k + np.maximum.accumulate(first - k)
     return bool(np.all(matched <= last))
+
+
+def _schoenberg_whitney_dense(collocation: np.ndarray, rows: np.ndarray) -> bool:
+    """:func:`_schoenberg_whitney_holds` for all columns of a dense collocation matrix.
+
+    Args:
+        collocation: (m, n) basis values at m sorted parameters (zero off each row's span).
+        rows: (m,) index of each parameter among the distinct ones, non-decreasing.
+
+    The rows are sorted, so each column's first and last positive row give its first and
+    last datum: two argmax calls instead of scattered minima and maxima.
+    """
+    positive = collocation > 0
+    if not positive.any(axis=0).all():
+        return False
+    m = positive.shape[0]
+    first = rows[positive.argmax(axis=0)]
+    last = rows[m - 1 - positive[::-1].argmax(axis=0)]
+    k = np.arange(first.shape[0])
+    return bool(np.all(k + np.maximum.accumulate(first - k) <= last))
 
 
 def least_squares_operator(collocation: np.ndarray, max_noise_gain: float | None = None) -> np.ndarray | None:
@@ -85,14 +127,45 @@ def least_squares_operator(collocation: np.ndarray, max_noise_gain: float | None
     m, n = collocation.shape
     if m < n:
         return None
-    q, r = np.linalg.qr(collocation)
+    q, r = _qr_reduced(collocation)
     diag = np.abs(np.diag(r))
     if diag.min() <= _RANK_TOLERANCE * diag.max():
         return None
-    phi = scipy.linalg.solve_triangular(r, q.T, check_finite=False)
+    phi = _solve_upper(r, q.T)
     if max_noise_gain is not None and np.max(np.einsum("ij,ij->i", phi, phi)) > max_noise_gain ** 2:
         return None
     return phi
+
+
+def _qr_reduced(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.linalg.qr(a)`` (reduced) of a float64 (m, n) a, m ≥ n: (m, n) Q and C-ordered
+    (n, n) R, whose strictly lower triangle is left holding Householder vectors (only the
+    upper triangle is ever read). The same Householder LAPACK routines (geqrf, orgqr),
+    called directly: numpy's wrapper costs more than the factorisation at fit sizes."""
+    qr, tau, _, info = _DGEQRF(a)
+    if info != 0:  # pragma: no cover - only for malformed arguments
+        raise np.linalg.LinAlgError(f"geqrf failed: info = {info}")
+    r = np.array(qr[: a.shape[1]], order="C")  # a copy even when it is all of qr: orgqr overwrites qr
+    q, _, info = _DORGQR(qr, tau, overwrite_a=True)
+    if info != 0:  # pragma: no cover
+        raise np.linalg.LinAlgError(f"orgqr failed: info = {info}")
+    return q, r
+
+
+def _solve_upper(r: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``scipy.linalg.solve_triangular(r, b, check_finite=False)`` for an upper triangular
+    float64 (n, n) r and (n, k) b: the same LAPACK call (so the same result) without the
+    wrapper's validation, which costs more than the solve at the sizes fits have."""
+    if r.flags.f_contiguous:
+        x, info = _DTRTRS(r, b, overwrite_b=False, lower=False, trans=0, unitdiag=False)
+    else:  # as solve_triangular does: trtrs wants Fortran order, so solve the transpose
+        x, info = _DTRTRS(r.T, b, overwrite_b=False, lower=True, trans=1, unitdiag=False)
+    if info != 0:  # pragma: no cover - the caller has checked the diagonal
+        raise np.linalg.LinAlgError(f"trtrs failed: info = {info}")
+    return x
+
+
+_DTRTRS, _DGEQRF, _DORGQR = scipy.linalg.get_lapack_funcs(("trtrs", "geqrf", "orgqr"), (np.zeros((1, 1)),))
 
 
 def check_params(params: object, m: int) -> np.ndarray:
@@ -301,16 +374,27 @@ def fit_curve(points: object, degree: int, spacing_m: float, params: object = No
     m = pts.shape[0]
     if m < degree + 1:
         raise FitError(f"a degree-{degree} fit needs at least {degree + 1} points, got {m}")
-    t = chord_length_parameters(pts) if params is None else check_params(params, m)
+    t = _chord_lengths(pts) if params is None else check_params(params, m)
     length = float(t[-1] - t[0])
     if not length > 0:
         raise FitError("all points share one parameter (coincident points); nothing to fit")
-    distinct, multiplicity = np.unique(t, return_counts=True)
+    distinct, multiplicity, inverse = _distinct_sorted(t)
     # n_control = spans + degree can never exceed the number of distinct parameters.
-    most = min(span_count(length, spacing_m), distinct.shape[0] - degree)
-    # The most spans that give a well-posed fit win. Schoenberg–Whitney and a lower bound of
-    # the noise gain are decided for all span counts at once; only the survivors are
-    # factorised, from the most spans down, until one passes.
+    most = most_spans = min(span_count(length, spacing_m), distinct.shape[0] - degree)
+    # The most spans that give a well-posed fit win. On real scans the most spans nearly
+    # always do (and else one or two fewer), so the first few counts are decided directly,
+    # each from one basis evaluation; only if they all fail are the remaining counts
+    # screened at once (Schoenberg–Whitney and a lower bound of the noise gain) and the
+    # survivors factorised, from the most spans down.
+    for _ in range(_DIRECT_TRIES):
+        if most < 1:
+            break
+        fit = _fit_with_spans(pts, t, inverse, distinct.shape[0], most, degree, max_noise_gain)
+        if isinstance(fit, FitResult):
+            return fit
+        if fit is not _REJECTED:  # undecided: the search decides this count and the rest
+            break
+        most -= 1
     for spans in iter_span_counts(t, distinct, multiplicity, degree, most, max_noise_gain):
         knots = clamped_knots_with_spans(length, spans, degree, start=float(t[0]))
         knots[-degree - 1 :] = t[-1]  # exactly the last parameter, not start + length
@@ -320,5 +404,77 @@ def fit_curve(points: object, degree: int, spacing_m: float, params: object = No
         curve = BSplineCurve.unchecked(phi @ pts, knots, degree)
         return FitResult(curve=curve, phi=phi, params=t)
     raise FitError(
-        f"no degree-{degree} spline with 1..{max(most, 1)} spans fits these {m} points "
+        f"no degree-{degree} spline with 1..{max(most_spans, 1)} spans fits these {m} points "
         "(Schoenberg–Whitney fails: too few distinct points)")
+
+
+def _distinct_sorted(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``np.unique(t, return_counts=True, return_inverse=True)`` for non-decreasing t,
+    without the sort: (d,) distinct values, (d,) their counts, (m,) index of each value."""
+    m = t.shape[0]
+    new = np.empty(m, dtype=bool)
+    new[0] = True
+    np.greater(t[1:], t[:-1], out=new[1:])
+    inverse = np.cumsum(new)
+    inverse -= 1
+    if inverse[-1] == m - 1:  # all distinct, the usual case for chord lengths of scan points
+        return t, np.ones(m, dtype=np.intp), inverse
+    first = np.flatnonzero(new)
+    counts = np.empty(first.shape[0], dtype=np.intp)
+    counts[:-1] = first[1:] - first[:-1]
+    counts[-1] = m - first[-1]
+    return t[first], counts, inverse
+
+
+# Span counts fit_curve decides one by one before it screens all the others at once: one
+# direct decision costs about a tenth of the screen's setup, and in refined fits (half the
+# knot spacing) the most spans fail about one time in five, nearly always for one or two
+# counts only.
+_DIRECT_TRIES = 3
+
+# What _fit_with_spans returns for a span count that fit_curve's search rejects.
+_REJECTED = object()
+
+
+def _fit_with_spans(pts: np.ndarray, t: np.ndarray, inverse: np.ndarray, d: int, spans: int, degree: int,
+                    max_noise_gain: float | None) -> FitResult | object | None:
+    """The fit on ``spans`` spans; :data:`_REJECTED` where :func:`fit_curve`'s search
+    rejects that count (Schoenberg–Whitney on the distinct parameters, then
+    :func:`least_squares_operator`); None, undecided, if an end span of the knot vector is
+    empty (only for a length below the rounding of the start), where the search's span
+    lookup and :func:`find_span` could differ: the search decides then.
+
+    One basis evaluation at the m parameters serves both tests and the collocation matrix;
+    rows of repeated parameters are identical, so the Schoenberg–Whitney match on them is
+    the one on the distinct parameters.
+
+    Args:
+        pts: (m, 2) data points (m); t: (m,) their non-decreasing parameters (m).
+        inverse: (m,) index of each parameter among the d distinct ones.
+        spans: number of spans ≥ 1; degree: polynomial degree p.
+        max_noise_gain: as in :func:`fit_curve`.
+    """
+    p = degree
+    n = spans + p
+    # clamped_knots_with_spans(length, spans, p, start) with the exact last parameter as
+    # its end, bit for bit, without the argument checks (fit_curve has made them)
+    start = float(t[0])
+    knots = np.empty(n + p + 1)
+    knots[: p + 1] = start
+    knots[p + 1 : n] = start + float(t[-1] - t[0]) * (np.arange(1, spans) / spans)
+    knots[n:] = t[-1]
+    if not (knots[p] < knots[p + 1] and knots[n - 1] < knots[n]):
+        return None
+    # find_span, and the search's lookup, when neither end span is empty
+    span = np.searchsorted(knots, t, side="right") - 1
+    np.maximum(span, p, out=span)
+    np.minimum(span, n - 1, out=span)
+    _, values = basis_functions(knots, p, t, span=span)
+    collocation = np.zeros((t.shape[0], n))
+    collocation[np.arange(t.shape[0])[:, None], span[:, None] - p + np.arange(p + 1)] = values[0]
+    if not _schoenberg_whitney_dense(collocation, inverse):
+        return _REJECTED
+    phi = least_squares_operator(collocation, max_noise_gain)
+    if phi is None:
+        return _REJECTED
+    return FitResult(curve=BSplineCurve.unchecked(phi @ pts, knots, p), phi=phi, params=t)
