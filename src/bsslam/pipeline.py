@@ -121,9 +121,6 @@ class _OdometryMotion:
         self._prev = np.asarray(frame.odometry, dtype=float)
         return True, delta, None
 
-    def since_update(self):
-        return None
-
 
 class _FrontendMotion:
     """Scan-matched increments with their covariance; the filter runs on the scans the
@@ -151,8 +148,9 @@ class _FrontendMotion:
 
 @dataclass(frozen=True)
 class _Replayed:
-    """One frame as the second pass needs it: a filter step (scan set) with its increment,
-    or a skipped scan whose pose is the last step's composed with ``delta``."""
+    """One frame as the second pass needs it: a filter step (scan set) with its increment
+    (None on the first frame), or a skipped scan whose pose is the last step's composed
+    with ``delta``."""
 
     delta: np.ndarray | None
     covariance: np.ndarray | None
@@ -250,8 +248,6 @@ def relocalize(splines: list[MapSpline], replay: list[_Replayed], stamps: np.nda
             pose, cov = slam.pose, slam.pose_covariance
             if point_stride:
                 points.append(_scan_points(frame.scan, pose, frame.laser_offset, point_stride))
-        elif frame.delta is None:
-            pose, cov = slam.pose, slam.pose_covariance
         else:
             pose, cov = compose_with_covariance(slam.pose, slam.pose_covariance, frame.delta, frame.covariance)
         poses.append(pose)

@@ -129,10 +129,9 @@ def associate(observed: CurveBatch, mapped: CurveBatch, feature_ids: np.ndarray,
     deltas = _per_pair(match_distance_m, k, candidates.size)
     ob = observed.bboxes()[:, None, :]                       # (k, 1, 4)
     mb = mapped.bboxes()[candidates][None, :, :]             # (1, F, 4)
-    g = gates
     # bounding boxes farther apart than the gate cannot pass it; then the control points
-    near = ~((mb[..., 0] - ob[..., 2] > g) | (ob[..., 0] - mb[..., 2] > g) |
-             (mb[..., 1] - ob[..., 3] > g) | (ob[..., 1] - mb[..., 3] > g))
+    near = ~((mb[..., 0] - ob[..., 2] > gates) | (ob[..., 0] - mb[..., 2] > gates) |
+             (mb[..., 1] - ob[..., 3] > gates) | (ob[..., 1] - mb[..., 3] > gates))
     io, jf = np.nonzero(near)                                # pairs, observed-major
     im = candidates[jf]
     if io.size:
