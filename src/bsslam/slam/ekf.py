@@ -35,43 +35,53 @@ def innovation_variances(P: np.ndarray | CovarianceColumns, cols: np.ndarray, H_
 
 class CovarianceColumns:
     """``P[:, cols]`` of a covariance that does not change, for the repeated requests of one
-    iterated update: gathering n × c scattered entries is the largest cost of a gain after
-    the covariance update itself. The columns gathered are kept; a request for a subset of
-    them is served from that (n, C) block, which is far faster to index than P.
+    iterated update: gathering P's entries is the largest cost of a gain after the
+    covariance update itself. Each state index is gathered once, as a row of P (P is
+    symmetric, and its rows are contiguous); a request is then served from those rows.
 
     Args:
-        source: the (n, n) covariance, or a :class:`JointState` (its columns are then
-            gathered without folding its pending update); must not change while this
+        source: the (n, n) symmetric covariance, or a :class:`JointState` (its rows are
+            then gathered without folding its pending update); must not change while this
             object is used.
     """
 
     def __init__(self, source: np.ndarray | JointState):
-        self._gather = source.columns if isinstance(source, JointState) else (lambda cols: source[:, cols])
+        self._gather = source.rows if isinstance(source, JointState) else (lambda rows: source[rows])
         n = source.size if isinstance(source, JointState) else source.shape[0]
-        self._cols = np.empty(0, dtype=np.intp)     # sorted
-        self._P_c = np.empty((n, 0))
+        self._slot = np.full(n, -1, dtype=np.intp)   # row of _rows holding each state index
+        self._rows = np.empty((64, n))                 # P[i, :] of the indices gathered so far
+        self._count = 0
         self._last: tuple[np.ndarray, np.ndarray] | None = None
 
+    def _slots(self, cols: np.ndarray) -> np.ndarray:
+        slot = self._slot[cols]
+        missing = cols[slot < 0]
+        if missing.size:
+            new = np.unique(missing)
+            end = self._count + new.shape[0]
+            if end > self._rows.shape[0]:
+                grown = np.empty((max(2 * self._rows.shape[0], end), self._rows.shape[1]))
+                grown[: self._count] = self._rows[: self._count]
+                self._rows = grown
+            self._rows[self._count : end] = self._gather(new)
+            self._slot[new] = np.arange(self._count, end)
+            self._count = end
+            slot = self._slot[cols]
+        return slot
+
     def get(self, cols: np.ndarray) -> np.ndarray:
-        """(n, c) ``P[:, cols]`` (do not modify it)."""
+        """(n, c) ``P[:, cols]`` (a transposed view of gathered rows; do not modify it)."""
         if self._last is not None and np.array_equal(self._last[0], cols):
             return self._last[1]
-        pos = np.searchsorted(self._cols, cols)
-        pos_ok = np.minimum(pos, max(self._cols.shape[0] - 1, 0))
-        if self._cols.shape[0] and np.array_equal(self._cols[pos_ok], cols):
-            out = self._P_c[:, pos]
-        else:
-            out = self._gather(cols)
-            self._cols, first = np.unique(np.concatenate([self._cols, cols]), return_index=True)
-            # the union, taken from what is gathered already where possible
-            both = np.concatenate([self._P_c, out], axis=1)
-            self._P_c = np.ascontiguousarray(both[:, first])
+        slot = self._slots(cols)   # may replace self._rows: index it after
+        out = self._rows[slot].T
         self._last = (cols.copy(), out)
         return out
 
     def block(self, cols: np.ndarray) -> np.ndarray:
         """(c, c) ``P[cols][:, cols]``."""
-        return self.get(cols)[cols]
+        slot = self._slots(cols)
+        return self._rows[slot][:, cols]
 
 
 class StackedGain:

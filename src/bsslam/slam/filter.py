@@ -148,6 +148,7 @@ class SplineSLAM:
             feature = SplineFeature(slam._new_id(), c.degree, c.knots.copy(),
                                     fixed_control_points=np.array(c.control_points, dtype=float))
             slam.features[feature.id] = feature
+        slam._map_changed()
         slam._build_map = False
         return slam
 
@@ -235,13 +236,16 @@ class SplineSLAM:
         return features.splines
 
     def _map_curves(self) -> MapCurves | None:
-        """The map splines' batch table, rebuilt only when a spline was added, extended or removed."""
-        features = list(self.features.values())
-        if not features:
+        """The map splines' batch table, rebuilt only after a spline was added, extended or
+        removed (each of those calls :meth:`_map_changed`)."""
+        if not self.features:
             return None
-        if self._map is None or not self._map.describes(features):
-            self._map = MapCurves(features)
+        if self._map is None:
+            self._map = MapCurves(list(self.features.values()))
         return self._map
+
+    def _map_changed(self) -> None:
+        self._map = None
 
     def _associate(self, observed: list[ObservedSpline], offset: np.ndarray) -> list[list[Match]]:
         cfg = self.config.association
@@ -488,6 +492,7 @@ class SplineSLAM:
             idx = self.state.append(block.mean, cross, cov)
             feature.idx_x, feature.idx_y = idx[:n], idx[n:]
         self.features[feature.id] = feature
+        self._map_changed()
         return True
 
     def _extend_feature(self, f: SplineFeature, obs: ObservedSpline, match: Match, side: str,
@@ -512,6 +517,7 @@ class SplineSLAM:
         if not f.in_state:
             f.fixed_control_points = ext.curve.control_points.copy()
             f.knots = ext.curve.knots.copy()
+            self._map_changed()
             return True
         block = extension_block(new_rows, n_old, f.idx_x, f.idx_y, curve.control_points, bp)
         cross, cov = block.covariance_terms(self.state.columns(block.cols), self._range_variance)
@@ -524,6 +530,7 @@ class SplineSLAM:
         else:
             f.idx_x, f.idx_y = np.concatenate([new_x, f.idx_x]), np.concatenate([new_y, f.idx_y])
         f.knots = ext.curve.knots.copy()
+        self._map_changed()
         return True
 
     def _transform_block(self, idx: np.ndarray, T: np.ndarray) -> None:
@@ -547,6 +554,8 @@ class SplineSLAM:
     def remove_features(self, feature_ids) -> None:
         """Delete map splines and their rows/columns of the state, compacting P once."""
         removed = [self.features.pop(fid) for fid in feature_ids]
+        if removed:
+            self._map_changed()
         idx = [f.state_indices for f in removed if f.in_state]
         if not idx:
             return

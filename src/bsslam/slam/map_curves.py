@@ -3,8 +3,8 @@
 Association and the observation model query every map spline near the robot; over a
 :class:`~bsslam.spline.batch.CurveBatch` each query is one vectorised computation instead
 of one Python call per spline. The knot structure (:class:`~bsslam.spline.batch.CurveTable`)
-changes only when a spline is added, extended or removed, so it is kept between scans and
-rebuilt when the features no longer match it; the control points are read from the state
+changes only when a spline is added, extended or removed, so the filter keeps it between
+scans and rebuilds it after such a change; the control points are read from the state
 mean whenever it moves.
 """
 
@@ -29,8 +29,6 @@ class MapCurves:
 
     def __init__(self, features: list[SplineFeature]):
         self.features = list(features)
-        self._signature = _signature(self.features)
-        self._alive = [(f.knots, f.idx_x, f.idx_y, f.fixed_control_points) for f in self.features]
         self.ids = np.array([f.id for f in self.features], dtype=np.intp)
         self.index = {f.id: c for c, f in enumerate(self.features)}
         self.table = curve_table([f.knots for f in self.features], [f.degree for f in self.features])
@@ -47,12 +45,6 @@ class MapCurves:
         self._all_in_state = bool(self._in_state.all())
         self._fixed = np.vstack(fixed)
 
-    def describes(self, features: list[SplineFeature]) -> bool:
-        """Whether this table is still that of ``features`` (same objects, same knot and
-        index arrays: the filter replaces those arrays, never edits them, when it changes a
-        spline)."""
-        return _signature(features) == self._signature
-
     def control_points(self, x: np.ndarray) -> np.ndarray:
         """(N, 2) stacked control points at the state mean ``x`` (m)."""
         cp = x[np.maximum(self.state_rows, 0)]
@@ -65,8 +57,3 @@ class MapCurves:
         queried when given (see :meth:`CurveTable.with_control_points`)."""
         return self.table.with_control_points(self.control_points(x), curves)
 
-
-def _signature(features: list[SplineFeature]) -> list[tuple[int, ...]]:
-    # Identities of the feature objects and of their arrays; the table holds references to
-    # all of them (``features``, ``_alive``), so no id can be reused while it is compared.
-    return [(id(f), id(f.knots), id(f.idx_x), id(f.idx_y), id(f.fixed_control_points)) for f in features]
