@@ -298,5 +298,5 @@ def test_score_grid_follows_in_place_additions_and_pickles_without_views():
     assert np.all(after >= before) and np.any(after > before)
     np.testing.assert_allclose(after, field.score_poses(scan, poses, _offset_grid(4, 1)), rtol=1e-5, atol=1e-7)
     copy = pickle.loads(pickle.dumps(field))
-    assert "_window_views" not in copy.__dict__
+    assert "_row_views" not in copy.__dict__
     np.testing.assert_array_equal(copy.score_grid(scan, poses, 4, 1), after)

@@ -41,6 +41,12 @@ from bsslam.scan.segment import valid_beams
 from bsslam.se2 import compose
 from bsslam.trajectory import wrap_angle
 
+def _wrap(a: float) -> float:
+    """:func:`~bsslam.trajectory.wrap_angle` of one float (rad), the same arithmetic without
+    numpy's per-call cost (Python's float ``%`` is numpy's ``mod``)."""
+    return math.pi - (math.pi - a) % (2.0 * math.pi)
+
+
 #: Reasons a match is not trusted (``MatchResult.reason``); "ok" otherwise.
 FAIL_REASONS = ("too_few_scan_points", "too_few_reference_points", "too_few_correspondences", "poor_score")
 
@@ -167,6 +173,11 @@ class LikelihoodField:
         lo, hi = 2 * self.pad + self.radius + 1, np.array(self.shape) - 2 * self.pad - self.radius - 2
         inside = np.all((c >= lo) & (c <= hi), axis=1)
         self._splat_cells(np.unique(c[inside, 0] * self.shape[1] + c[inside, 1]))
+        # The decimated copies of :meth:`_rows` are stale now (step-1 views are not copies).
+        rows = self.__dict__.get("_row_views")
+        if rows:
+            for key in [key for key in rows if key[0] != 1]:
+                del rows[key]
 
     def _splat_cells(self, occupied: np.ndarray) -> None:
         target = (occupied[:, None] + self.kernel_offset[None, :]).ravel()
@@ -192,32 +203,51 @@ class LikelihoodField:
         return np.take(self.values, idx).sum(axis=2, dtype=np.float32) / points.shape[0]
 
     def __getstate__(self) -> dict:
-        # The cached window views would pickle as (k²× larger) copies.
+        # The cached row views and decimated copies are derived data.
         state = dict(self.__dict__)
-        state.pop("_window_views", None)
+        state.pop("_row_views", None)
         return state
 
-    def _windows(self, reach: int, step: int) -> np.ndarray:
-        """(nx − 2·reach, ny − 2·reach, k, k) view: the cells ``reach`` around each cell,
-        every ``step``-th. Made once per (reach, step): it is a view, so it follows
-        :meth:`add`'s in-place updates, and making one costs ~0.1 ms."""
-        cache = self.__dict__.setdefault("_window_views", {})
-        view = cache.get((reach, step))
-        if view is None:
-            view = np.lib.stride_tricks.sliding_window_view(
-                self.values.reshape(self.shape), (2 * reach + 1, 2 * reach + 1))[..., ::step, ::step]
-            cache[(reach, step)] = view
-        return view
+    def _rows(self, step: int, width: int) -> tuple[np.ndarray, int]:
+        """Every run of ``width`` cells ``step`` apart along y as one item: a 1-D view of
+        opaque ``width``·4-byte items, item ``i`` holding the floats at ``i, i + 1, …`` of a
+        (step, nx, ⌈ny/step⌉) array ``D[par, x, j] = field[x, j·step + par]`` (for step 1
+        that is the field itself). Returns it and the item stride between neighbouring x
+        cells.
+
+        Gathering one such item per (pose, point, x offset) copies a whole window row at a
+        time: ``step``·``width`` fewer indexed copies than gathering cells, and the same
+        float32 values. For step 1 the view follows :meth:`add`'s in-place updates; the
+        decimated copy for step > 1 is dropped by :meth:`add` and made again when needed
+        (~0.05 ms)."""
+        cache = self.__dict__.setdefault("_row_views", {})
+        key = (step, width)
+        rows = cache.get(key)
+        if rows is None:
+            nx, ny = self.shape
+            if step == 1:
+                deci = self.values
+                stride = ny
+            else:
+                stride = -(-ny // step)
+                deci = np.zeros((step, nx, stride), dtype=np.float32)
+                grid = self.values.reshape(nx, ny)
+                for par in range(step):
+                    deci[par, :, :(ny - par + step - 1) // step] = grid[:, par::step]
+                deci = deci.ravel()
+            rows = (np.ndarray(shape=(deci.shape[0] - width + 1,), dtype=np.dtype((np.void, 4 * width)),
+                               buffer=deci, strides=(4,)), stride)
+            cache[key] = rows
+        return rows
 
     def score_grid(self, points: np.ndarray, poses: np.ndarray, half_cells: int, step_cells: int) -> np.ndarray:
         """:meth:`score_poses` for the offsets ``_offset_grid(half_cells, step_cells)`` (in
         that order, x offset major): (p, t) mean field values, t = (2·(half//step) + 1)².
 
         The offsets form a square grid of cells, so each moved point reads one strided
-        window of the 2-D field: one gather of (p, n, k, k) values through a sliding-window
-        view instead of building and gathering a (p, t, n) flat index array (about 4×
-        faster). ``half_cells`` must not exceed ``pad`` (the clipped base cell then keeps
-        the window inside the grid).
+        window of the 2-D field, row by row (:meth:`_rows`): one gather of (p, n, k) rows
+        of k values instead of a (p, t, n) flat index array. ``half_cells`` must not exceed
+        ``pad`` (the clipped base cell then keeps the window inside the grid).
         """
         if half_cells > self.pad:
             raise ValueError("offsets beyond the field's padding")
@@ -226,12 +256,20 @@ class LikelihoodField:
         wy = s[:, None] * points[None, :, 0] + c[:, None] * points[None, :, 1] + poses[:, 1:2]
         k = half_cells // step_cells
         reach = k * step_cells                                              # cells, ≤ pad
+        width = 2 * k + 1
+        nx, ny = self.shape
         ix = np.floor((wx - self.origin[0]) / self.resolution).astype(np.intp)
         iy = np.floor((wy - self.origin[1]) / self.resolution).astype(np.intp)
-        ix = np.clip(ix, self.pad, self.shape[0] - 1 - self.pad) - reach
-        iy = np.clip(iy, self.pad, self.shape[1] - 1 - self.pad) - reach
-        windows = self._windows(reach, step_cells)
-        patches = windows[ix, iy].reshape(poses.shape[0], points.shape[0], -1)   # (p, n, t)
+        ix = np.clip(ix, self.pad, nx - 1 - self.pad) - reach                # window corner
+        iy = np.clip(iy, self.pad, ny - 1 - self.pad) - reach
+        rows, stride = self._rows(step_cells, width)
+        if step_cells == 1:
+            first = ix * stride + iy
+        else:
+            first = (iy % step_cells) * (nx * stride) + ix * stride + iy // step_cells
+        row_offset = np.arange(0, width * step_cells * stride, step_cells * stride)
+        patches = rows[first[:, :, None] + row_offset].view(np.float32).reshape(
+            poses.shape[0], points.shape[0], width * width)                  # (p, n, t)
         # Sum over the points as a float32 matrix product (BLAS) rather than a strided
         # reduction over the middle axis.
         ones = np.ones(points.shape[0], dtype=np.float32)
@@ -364,7 +402,14 @@ class ReferenceMap:
                                           window + config.coarse_step_m)
         self.line_points = points[linear]
         self.line_normals = np.asarray(normals, dtype=float)[linear]
+        self._index_lines()
+
+    def _index_lines(self) -> None:
+        """KD-tree of the line points, and their points and normals side by side (k, 4)
+        so that a correspondence is one gather."""
         self.tree = _kdtree(self.line_points)
+        self._n_line = self.line_points.shape[0]
+        self._line_qn = np.concatenate((self.line_points, self.line_normals), axis=1)
 
     def extend(self, points: np.ndarray, normals: np.ndarray, linear: np.ndarray) -> bool:
         """Add reference points (with normals and line flags) in place: both fields are
@@ -379,7 +424,7 @@ class ReferenceMap:
         self.size = self.points.shape[0]
         self.line_points = np.concatenate((self.line_points, points[linear]))
         self.line_normals = np.concatenate((self.line_normals, np.asarray(normals, dtype=float)[linear]))
-        self.tree = _kdtree(self.line_points)
+        self._index_lines()
         return True
 
     # -- correlative search ------------------------------------------------------------------
@@ -429,38 +474,73 @@ class ReferenceMap:
             the final residuals (n,) (NaN where no correspondence), weights (n,), iterations.
         """
         cfg = self.config
-        x = np.asarray(start, dtype=float).copy()
+        points = np.ascontiguousarray(points, dtype=float)
+        x0, x1, x2 = (float(v) for v in start)
+        m0, m1, m2 = (float(v) for v in prior_mean)
         sigma2 = cfg.range_sigma_m ** 2 * cfg.covariance_inflation
         gate = cfg.icp_max_distance_m
+        # The pose is kept as three floats and the 3×3 algebra done with scalars where that
+        # is exact: a few-element numpy call costs more than its arithmetic (~7 iterations
+        # per scan).
         it = 0
         for it in range(1, cfg.icp_iterations + 1):
-            r, J, w, _ = self._residuals(points, x, gate)
+            Jr, w, _ = self._linearise(points, x0, x1, x2, gate)
             # [H | g] of the scan in one product: Jᵀ W [J | r].
-            Jw = J * w[:, None]
-            Hg = Jw.T @ np.column_stack((J, r)) / sigma2
-            e = x - prior_mean
-            e[2] = wrap_angle(e[2])
+            Hg = (Jr[:, :3] * w[:, None]).T @ Jr / sigma2
+            e = np.array((x0 - m0, x1 - m1, _wrap(x2 - m2)))
             H = Hg[:, :3] + prior_information
             g = Hg[:, 3] + prior_information @ e
             try:
                 delta = -np.linalg.solve(H, g)
             except np.linalg.LinAlgError:
                 break
-            x = x + delta
-            x[2] = wrap_angle(x[2])
-            small = math.hypot(delta[0], delta[1]) < 2e-4 and abs(delta[2]) < 2e-4
+            d0, d1, d2 = delta.tolist()
+            x0, x1, x2 = x0 + d0, x1 + d1, _wrap(x2 + d2)
+            small = math.hypot(d0, d1) < 2e-4 and abs(d2) < 2e-4
             if small and gate <= cfg.icp_min_distance_m:
                 break
             # The correlative start is within a fine step: the wide gate is only needed to
             # pull in points the first step, then it shrinks to the final one.
             gate = max(cfg.icp_min_distance_m, 0.5 * gate)
-        r, J, w, found = self._residuals(points, x, gate)
+        Jr, w, found = self._linearise(points, x0, x1, x2, gate)
+        J = Jr[:, :3]
         info = (J * w[:, None]).T @ J
         residuals = np.full(points.shape[0], np.nan)
-        residuals[found] = r
+        residuals[found] = Jr[:, 3]
         weights = np.zeros(points.shape[0])
         weights[found] = w
-        return x, info, residuals, weights, it
+        return np.array((x0, x1, x2)), info, residuals, weights, it
+
+    def _linearise(self, points: np.ndarray, x0: float, x1: float, x2: float, gate: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Point-to-line residuals of robot-frame ``points`` (n, 2) moved by the pose
+        (x0 m, x1 m, x2 rad) against their nearest line-like reference point within ``gate``
+        (m), with their Jacobian.
+
+        Returns:
+            Jr (m, 4): the Jacobian (m, 3) of the residuals in (x, y, φ) and, in the last
+            column, the residuals nᵀ(R p + t − q) (m); w (m,) Huber weights; found (n,)
+            which points had a correspondence (m of them).
+        """
+        c, s = math.cos(x2), math.sin(x2)
+        rotated = points @ np.array(((c, s), (-s, c)))                     # R p, (n, 2)
+        moved = rotated + (x0, x1)
+        _, idx = self.tree.query(moved, distance_upper_bound=gate)
+        found = idx < self._n_line                       # a miss is reported as index m
+        if not found.all():
+            idx, rotated, moved = idx[found], rotated[found], moved[found]
+        qn = self._line_qn[idx]                                            # (m, 4): q, n
+        n = qn[:, 2:]
+        Jr = np.empty((idx.shape[0], 4))
+        Jr[:, :2] = n
+        # ∂(R p)/∂φ = (−(R p)_y, (R p)_x)
+        Jr[:, 2] = n[:, 1] * rotated[:, 0] - n[:, 0] * rotated[:, 1]
+        r = Jr[:, 3]
+        np.einsum("ij,ij->i", n, moved - qn[:, :2], out=r)
+        # Huber: 1 inside the threshold, huber/|r| outside.
+        huber = self.config.huber_m
+        w = huber / np.maximum(np.abs(r), huber)
+        return Jr, w, found
 
     def _residuals(self, points: np.ndarray, x: np.ndarray, gate: float):
         """Point-to-line residuals of robot-frame ``points`` (n, 2) moved by the pose ``x``
@@ -470,23 +550,9 @@ class ReferenceMap:
             r (m,) residuals nᵀ(R p + t − q) (m), J (m, 3) their Jacobian in (x, y, φ),
             w (m,) Huber weights, found (n,) which points had a correspondence (m of them).
         """
-        c, s = math.cos(x[2]), math.sin(x[2])
-        rotated = points @ np.array([[c, s], [-s, c]])                     # R p, (n, 2)
-        moved = rotated + x[:2]
-        dist, idx = self.tree.query(moved, distance_upper_bound=gate)
-        found = np.isfinite(dist)
-        if not found.all():
-            idx, rotated, moved = idx[found], rotated[found], moved[found]
-        q, n = self.line_points[idx], self.line_normals[idx]
-        r = np.einsum("ij,ij->i", n, moved - q)
-        J = np.empty((r.shape[0], 3))
-        J[:, :2] = n
-        # ∂(R p)/∂φ = (−(R p)_y, (R p)_x)
-        J[:, 2] = n[:, 1] * rotated[:, 0] - n[:, 0] * rotated[:, 1]
-        # Huber: 1 inside the threshold, huber/|r| outside.
-        huber = self.config.huber_m
-        w = huber / np.maximum(np.abs(r), huber)
-        return r, J, w, found
+        Jr, w, found = self._linearise(np.ascontiguousarray(points, dtype=float), float(x[0]), float(x[1]),
+                                       float(x[2]), gate)
+        return Jr[:, 3], Jr[:, :3], w, found
 
     # -- the whole match ---------------------------------------------------------------------
 
