@@ -81,11 +81,16 @@ def voxel_thin(points: np.ndarray, cell_m: float) -> np.ndarray:
     return np.sort(first)
 
 
+@lru_cache(maxsize=1024)
 def even_subset(n: int, k: int) -> np.ndarray:
-    """Indices of at most ``k`` of ``n`` items, evenly spread (all when n ≤ k)."""
+    """Indices of at most ``k`` of ``n`` items, evenly spread (all when n ≤ k); read-only
+    (cached: the same few (n, k) recur scan after scan)."""
     if n <= k:
-        return np.arange(n)
-    return np.unique(np.linspace(0, n - 1, k).round().astype(np.intp))
+        sub = np.arange(n)
+    else:
+        sub = np.unique(np.linspace(0, n - 1, k).round().astype(np.intp))
+    sub.flags.writeable = False
+    return sub
 
 
 def _kdtree(points: np.ndarray) -> cKDTree:
@@ -297,6 +302,12 @@ class _SearchGrid:
         fine_rot: (f,) fine rotations relative to a coarse candidate (rad).
         fine_half: the fine offsets are ``_offset_grid(fine_half, 1)`` (fine cells);
             fine_offsets_m (t', 2) in m.
+        near_offsets: (t, t) bool, the coarse offsets closer than two coarse steps (the
+            neighbourhood of a coarse maximum, :func:`_distinct_maxima`).
+        rot_poses: (r, 3) poses (0, 0, rot_steps): the coarse poses less the guess.
+        fine_trans_prior: (t, t') the translation part of the quadratic penalty (without
+            the weight) of fine offset t' around coarse offset t.
+        fine_rot_prior: (r, f) its rotation part, fine rotation f around coarse rotation r.
     """
 
     rot_steps: np.ndarray
@@ -308,6 +319,9 @@ class _SearchGrid:
     fine_rot: np.ndarray
     fine_half: int
     fine_offsets_m: np.ndarray
+    near_offsets: np.ndarray
+    fine_trans_prior: np.ndarray
+    fine_rot_prior: np.ndarray
 
 
 @lru_cache(maxsize=16)
@@ -323,9 +337,15 @@ def _search_grid(cfg: FrontendConfig, res_c: float, res_f: float) -> _SearchGrid
     n_fine_rot = int(round(cfg.coarse_step_rad / cfg.fine_step_rad))
     fine_rot = cfg.fine_step_rad * np.arange(-n_fine_rot, n_fine_rot + 1)
     half_f = int(round(cfg.coarse_step_m / res_f))
+    fine_offsets_m = _offset_grid(half_f, 1) * res_f
+    dx = offsets_m[:, 0:1] + fine_offsets_m[None, :, 0]
+    dy = offsets_m[:, 1:2] + fine_offsets_m[None, :, 1]
+    trans = (dx * dx + dy * dy) / (2 * cfg.search_window_m ** 2)
+    rot = (rot_steps[:, None] + fine_rot[None, :]) ** 2 / (2 * cfg.search_window_rad ** 2)
     grid = _SearchGrid(rot_steps, half_c, step_c, offsets, offsets_m, penalty, fine_rot, half_f,
-                       _offset_grid(half_f, 1) * res_f)
-    for a in (grid.rot_steps, grid.offsets, grid.offsets_m, grid.coarse_penalty, grid.fine_rot, grid.fine_offsets_m):
+                       fine_offsets_m, _near_offsets(offsets, 2 * step_c), trans, rot)
+    for a in (grid.rot_steps, grid.offsets, grid.offsets_m, grid.coarse_penalty, grid.fine_rot, grid.fine_offsets_m,
+              grid.near_offsets, grid.fine_trans_prior, grid.fine_rot_prior):
         a.flags.writeable = False          # shared between calls
     return grid
 
@@ -435,27 +455,28 @@ class ReferenceMap:
         cfg = self.config
         guess = np.asarray(guess, dtype=float)
         grid = _search_grid(cfg, self.coarse.resolution, self.fine.resolution)
-        rots = guess[2] + grid.rot_steps
-        poses = np.column_stack((np.full_like(rots, guess[0]), np.full_like(rots, guess[1]), rots))
+        poses = np.empty((grid.rot_steps.shape[0], 3))
+        poses[:, 0], poses[:, 1] = guess[0], guess[1]
+        poses[:, 2] = guess[2] + grid.rot_steps
         score = self.coarse.score_grid(points, poses, grid.coarse_half, grid.coarse_step)   # (r, t)
         # Quadratic tie-break towards the guess: −w at the window's corner.
         score = score - grid.coarse_penalty
-        candidates = np.array(_distinct_maxima(score, cfg.coarse_candidates, rot_sep=2, off=grid.offsets,
-                                               off_sep=2 * grid.coarse_step), dtype=np.intp).reshape(-1, 2)
+        candidates = _distinct_maxima(score, cfg.coarse_candidates, rot_sep=2, off=grid.offsets,
+                                      off_sep=2 * grid.coarse_step, near_off=grid.near_offsets, overwrite=True)
+        cand_rot, cand_off = (list(c) for c in zip(*candidates))
         # Fine level: ±1 coarse step (rotation and translation) around each candidate: the
         # blurred coarse peak can sit a whole step from the true one.
-        shift = grid.offsets_m[candidates[:, 1]]                                  # (k, 2) m from the guess
-        turn = grid.rot_steps[candidates[:, 0]]                                   # (k,) rad from the guess
-        centres = np.column_stack((guess[0] + shift[:, 0], guess[1] + shift[:, 1], rots[candidates[:, 0]]))
+        shift = grid.offsets_m[cand_off]                                          # (k, 2) m from the guess
         n_fine = grid.fine_rot.shape[0]
-        fine_poses = np.repeat(centres, n_fine, axis=0)
-        fine_poses[:, 2] += np.tile(grid.fine_rot, centres.shape[0])
+        fine_poses = np.empty((len(candidates), n_fine, 3))
+        fine_poses[:, :, 0] = (guess[0] + shift[:, 0])[:, None]
+        fine_poses[:, :, 1] = (guess[1] + shift[:, 1])[:, None]
+        fine_poses[:, :, 2] = poses[cand_rot, 2][:, None] + grid.fine_rot
+        fine_poses = fine_poses.reshape(-1, 3)
         fine = self.fine.score_grid(points, fine_poses, grid.fine_half, 1)
         # The same penalty, split into its translation (k, t) and rotation (k, f) parts.
-        dx = shift[:, 0:1] + grid.fine_offsets_m[None, :, 0]
-        dy = shift[:, 1:2] + grid.fine_offsets_m[None, :, 1]
-        trans = (dx * dx + dy * dy) / (2 * cfg.search_window_m ** 2)
-        rot = (turn[:, None] + grid.fine_rot[None, :]) ** 2 / (2 * cfg.search_window_rad ** 2)
+        trans = grid.fine_trans_prior[cand_off]
+        rot = grid.fine_rot_prior[cand_rot]
         fprior = (trans[:, None, :] + rot[:, :, None]).reshape(fine.shape)
         total = fine - cfg.search_prior_weight * fprior
         p, t = divmod(int(np.argmax(total)), total.shape[1])
@@ -473,6 +494,17 @@ class ReferenceMap:
             pose (3,), the scan's information (3, 3) in units of 1/σ² (without the prior),
             the final residuals (n,) (NaN where no correspondence), weights (n,), iterations.
         """
+        pose, info, Jr, w, found, it = self._refine(points, start, prior_mean, prior_information)
+        residuals = np.full(found.shape[0], np.nan)
+        residuals[found] = Jr[:, 3]
+        weights = np.zeros(found.shape[0])
+        weights[found] = w
+        return pose, info, residuals, weights, it
+
+    def _refine(self, points: np.ndarray, start: np.ndarray, prior_mean: np.ndarray, prior_information: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+        """:meth:`refine`, returning the final residuals as :meth:`_linearise` does: pose
+        (3,), information (3, 3), Jr (m, 4), w (m,), found (n,), iterations."""
         cfg = self.config
         points = np.ascontiguousarray(points, dtype=float)
         x0, x1, x2 = (float(v) for v in start)
@@ -503,13 +535,9 @@ class ReferenceMap:
             # pull in points the first step, then it shrinks to the final one.
             gate = max(cfg.icp_min_distance_m, 0.5 * gate)
         Jr, w, found = self._linearise(points, x0, x1, x2, gate)
-        J = Jr[:, :3]
+        J = np.ascontiguousarray(Jr[:, :3])
         info = (J * w[:, None]).T @ J
-        residuals = np.full(points.shape[0], np.nan)
-        residuals[found] = Jr[:, 3]
-        weights = np.zeros(points.shape[0])
-        weights[found] = w
-        return np.array((x0, x1, x2)), info, residuals, weights, it
+        return np.array((x0, x1, x2)), info, Jr, w, found, it
 
     def _linearise(self, points: np.ndarray, x0: float, x1: float, x2: float, gate: float
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -589,21 +617,19 @@ class ReferenceMap:
 
         start, correlation = self.correlative(search, guess)
         prior_info = np.linalg.inv(prior_covariance)
-        pose, info, residuals, weights, iterations = self.refine(pts, start, guess, prior_info)
+        pose, info, Jr, w, found, iterations = self._refine(pts, start, guess, prior_info)
 
-        found = np.isfinite(residuals)
-        inliers = int(np.count_nonzero(found & (np.abs(np.nan_to_num(residuals)) < cfg.inlier_distance_m)))
+        r = Jr[:, 3]                                      # residuals of the points found
+        inliers = int(np.count_nonzero(np.abs(r) < cfg.inlier_distance_m))
         n = pts.shape[0]
         score = inliers / n
         base = dict(correlation=correlation, points=n, inliers=inliers, iterations=iterations, information=info)
-        if np.count_nonzero(found) < cfg.min_points:
+        if r.shape[0] < cfg.min_points:
             return fail("too_few_correspondences", **base)
         if score < cfg.min_inlier_fraction:
             return fail("poor_score", score, **base)
 
         # Residual σ: the stated one, or the (Huber-weighted) estimate when larger.
-        r = residuals[found]
-        w = weights[found]
         dof = max(1.0, float(np.sum(w)) - 3.0)
         sigma2_hat = float(np.sum(w * r * r)) / dof
         sigma2 = max(cfg.range_sigma_m ** 2, sigma2_hat) * cfg.covariance_inflation
@@ -615,32 +641,41 @@ class ReferenceMap:
         return MatchResult(pose, cov, score, True, "ok", degenerate, **base)
 
 
-def _distinct_maxima(score: np.ndarray, k: int, *, rot_sep: int, off: np.ndarray, off_sep: int) -> list[tuple[int, int]]:
+def _distinct_maxima(score: np.ndarray, k: int, *, rot_sep: int, off: np.ndarray, off_sep: int,
+                     near_off: np.ndarray | None = None, overwrite: bool = False) -> list[tuple[int, int]]:
     """Up to ``k`` (rotation, offset) indices of the highest scores, each at least
     ``rot_sep`` rotation steps or ``off_sep`` cells from those already taken.
 
     Args:
-        score: (r, t) scores (rotations × offsets); not modified.
+        score: (r, t) scores (rotations × offsets); not modified unless ``overwrite``.
         off: (t, 2) the offsets (cells) of the columns.
+        near_off: (t, t) bool, ``_near_offsets(off, off_sep)`` if already made.
+        overwrite: ``score`` is a float64 scratch array that may be used up.
 
-    Greedy: take the highest remaining score, then knock out its neighbourhood (an outer
-    product of a rotation mask and an offset mask) and repeat; ``k`` argmax passes over the
-    (r, t) array instead of a full sort. Ties go to the lowest flat index.
+    Greedy: take the highest remaining score, then knock out its neighbourhood (a band
+    of rotations × the offsets near it) and repeat; ``k`` argmax passes over the (r, t)
+    array instead of a full sort. Ties go to the lowest flat index.
     """
-    left = np.array(score, dtype=float).ravel()     # a copy: knocked-out entries become −inf
-    n_rot, n_off = score.shape
-    rot_index = np.arange(n_rot)
+    left = score if overwrite else np.array(score, dtype=float)   # knocked-out entries become −inf
+    if near_off is None:
+        near_off = _near_offsets(off, off_sep)
+    n_rot, n_off = left.shape
+    flat = left.reshape(-1)
     taken: list[tuple[int, int]] = []
-    for _ in range(min(k, left.shape[0])):
-        j = int(np.argmax(left))
-        if left[j] == -np.inf:
+    for _ in range(min(k, flat.shape[0])):
+        j = int(flat.argmax())
+        if flat[j] == -np.inf:
             break
         r, t = divmod(j, n_off)
         taken.append((r, t))
-        near_rot = np.abs(rot_index - r) < rot_sep
-        near_off = np.max(np.abs(off - off[t]), axis=1) < off_sep
-        left.reshape(n_rot, n_off)[np.ix_(near_rot, near_off)] = -np.inf
+        # |rotation − r| < rot_sep: a band of rows.
+        left[max(r - rot_sep + 1, 0):max(r + rot_sep, 0), near_off[t]] = -np.inf
     return taken
+
+
+def _near_offsets(off: np.ndarray, off_sep: int) -> np.ndarray:
+    """(t, t) bool: offsets ``off`` (t, 2) less than ``off_sep`` cells apart on both axes."""
+    return np.max(np.abs(off[:, None, :] - off[None, :, :]), axis=2) < off_sep
 
 
 def match_scan(reference_points: np.ndarray, points: np.ndarray, guess: np.ndarray,
