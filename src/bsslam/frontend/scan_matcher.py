@@ -33,11 +33,9 @@ from functools import lru_cache
 import numpy as np
 from scipy.spatial import cKDTree
 
-from bsslam.config import SegmentationConfig
 from bsslam.errors import InputError
 from bsslam.config import FrontendConfig
 from bsslam.scan.laser_scan import LaserScan
-from bsslam.scan.segment import valid_beams
 from bsslam.se2 import compose
 from bsslam.trajectory import wrap_angle
 
@@ -58,15 +56,24 @@ FAIL_REASONS = ("too_few_scan_points", "too_few_reference_points", "too_few_corr
 def scan_points(scan: LaserScan, laser_offset: np.ndarray | None, config: FrontendConfig) -> np.ndarray:
     """(m, 2) end points (m) of the usable beams of ``scan`` in the robot frame.
 
-    Beams are dropped by :func:`bsslam.scan.valid_beams` (NaN/inf, no return, at or below
-    ``min_range_m``) and at or beyond ``max_range_m``; the laser offset is applied.
+    Beams are dropped as :func:`bsslam.scan.valid_beams` drops them (NaN/inf, no return at
+    or above the scan's ``max_range``, at or below ``min_range_m``) and at or beyond
+    ``max_range_m``; the laser offset is applied.
     """
-    mask, _ = valid_beams(scan, SegmentationConfig(min_range_m=config.min_range_m))
-    mask &= np.nan_to_num(scan.ranges, nan=np.inf) < config.max_range_m
-    angles, ranges = scan.angles[mask], scan.ranges[mask]
-    offset = np.zeros(3) if laser_offset is None else np.asarray(laser_offset, dtype=float)
-    c, s = np.cos(offset[2] + angles), np.sin(offset[2] + angles)
-    return np.column_stack((offset[0] + ranges * c, offset[1] + ranges * s))
+    ranges = scan.ranges
+    # valid_beams' rules in two comparisons (NaN compares False, ±inf fails one of them);
+    # tests/frontend check the two agree.
+    mask = (ranges > config.min_range_m) & (ranges < min(scan.max_range, config.max_range_m))
+    angles, ranges = scan.angles[mask], ranges[mask]
+    if laser_offset is None:
+        ox, oy, otheta = 0.0, 0.0, 0.0
+    else:
+        ox, oy, otheta = np.asarray(laser_offset, dtype=float).reshape(3).tolist()
+    c, s = np.cos(otheta + angles), np.sin(otheta + angles)
+    points = np.empty((ranges.shape[0], 2))
+    points[:, 0] = ox + ranges * c
+    points[:, 1] = oy + ranges * s
+    return points
 
 
 def voxel_thin(points: np.ndarray, cell_m: float) -> np.ndarray:
@@ -213,35 +220,45 @@ class LikelihoodField:
         state.pop("_row_views", None)
         return state
 
-    def _rows(self, step: int, width: int) -> tuple[np.ndarray, int]:
-        """Every run of ``width`` cells ``step`` apart along y as one item: a 1-D view of
-        opaque ``width``·4-byte items, item ``i`` holding the floats at ``i, i + 1, …`` of a
-        (step, nx, ⌈ny/step⌉) array ``D[par, x, j] = field[x, j·step + par]`` (for step 1
-        that is the field itself). Returns it and the item stride between neighbouring x
-        cells.
+    def _rows(self, step: int, width: int) -> tuple[np.ndarray, int, np.ndarray, np.ndarray]:
+        """Every run of ``width`` cells ``step`` apart along y as one item, for gathering
+        whole window rows of :meth:`score_grid` (``width`` = 2k + 1, reach k·step).
 
-        Gathering one such item per (pose, point, x offset) copies a whole window row at a
-        time: ``step``·``width`` fewer indexed copies than gathering cells, and the same
-        float32 values. For step 1 the view follows :meth:`add`'s in-place updates; the
-        decimated copy for step > 1 is dropped by :meth:`add` and made again when needed
-        (~0.05 ms)."""
+        Returns:
+            rows: 1-D view of opaque ``width``·4-byte items, item ``i`` holding the floats
+                ``i, i + 1, …`` of a (step, nx, ⌈ny/step⌉) array ``D[par, x, j] =
+                field[x, j·step + par]`` (for step 1 that is the field itself);
+            x_stride: items from one x cell to the next;
+            y_first: (ny,) ``x·x_stride + y_first[y]`` is the item of the first row of the
+                window centred on cell (x, y) (for reach ≤ x, y < n − reach);
+            row_offset: (width,) items from the window's first row to each of its rows.
+
+        Gathering one item per (pose, point, row) copies a whole window row at a time:
+        ``width`` fewer indexed copies than gathering cells, and the same float32 values.
+        For step 1 the view follows :meth:`add`'s in-place updates; the decimated copy for
+        step > 1 is dropped by :meth:`add` and made again when needed (~0.1 ms)."""
         cache = self.__dict__.setdefault("_row_views", {})
         key = (step, width)
         rows = cache.get(key)
         if rows is None:
             nx, ny = self.shape
+            reach = (width // 2) * step
+            y0 = np.arange(ny) - reach                     # the window's first column
             if step == 1:
                 deci = self.values
-                stride = ny
+                x_stride = ny
+                y_first = y0 - reach * x_stride
             else:
-                stride = -(-ny // step)
-                deci = np.zeros((step, nx, stride), dtype=np.float32)
+                x_stride = -(-ny // step)
+                deci = np.zeros((step, nx, x_stride), dtype=np.float32)
                 grid = self.values.reshape(nx, ny)
                 for par in range(step):
                     deci[par, :, :(ny - par + step - 1) // step] = grid[:, par::step]
                 deci = deci.ravel()
-            rows = (np.ndarray(shape=(deci.shape[0] - width + 1,), dtype=np.dtype((np.void, 4 * width)),
-                               buffer=deci, strides=(4,)), stride)
+                y_first = (y0 % step) * (nx * x_stride) + y0 // step - reach * x_stride
+            view = np.ndarray(shape=(deci.shape[0] - width + 1,), dtype=np.dtype((np.void, 4 * width)),
+                              buffer=deci, strides=(4,))
+            rows = (view, x_stride, y_first, np.arange(width) * (step * x_stride))
             cache[key] = rows
         return rows
 
@@ -259,20 +276,14 @@ class LikelihoodField:
         c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
         wx = c[:, None] * points[None, :, 0] - s[:, None] * points[None, :, 1] + poses[:, 0:1]
         wy = s[:, None] * points[None, :, 0] + c[:, None] * points[None, :, 1] + poses[:, 1:2]
-        k = half_cells // step_cells
-        reach = k * step_cells                                              # cells, ≤ pad
-        width = 2 * k + 1
+        width = 2 * (half_cells // step_cells) + 1
         nx, ny = self.shape
         ix = np.floor((wx - self.origin[0]) / self.resolution).astype(np.intp)
         iy = np.floor((wy - self.origin[1]) / self.resolution).astype(np.intp)
-        ix = np.clip(ix, self.pad, nx - 1 - self.pad) - reach                # window corner
-        iy = np.clip(iy, self.pad, ny - 1 - self.pad) - reach
-        rows, stride = self._rows(step_cells, width)
-        if step_cells == 1:
-            first = ix * stride + iy
-        else:
-            first = (iy % step_cells) * (nx * stride) + ix * stride + iy // step_cells
-        row_offset = np.arange(0, width * step_cells * stride, step_cells * stride)
+        np.clip(ix, self.pad, nx - 1 - self.pad, out=ix)                     # window centre
+        np.clip(iy, self.pad, ny - 1 - self.pad, out=iy)
+        rows, x_stride, y_first, row_offset = self._rows(step_cells, width)
+        first = ix * x_stride + y_first[iy]
         patches = rows[first[:, :, None] + row_offset].view(np.float32).reshape(
             poses.shape[0], points.shape[0], width * width)                  # (p, n, t)
         # Sum over the points as a float32 matrix product (BLAS) rather than a strided
