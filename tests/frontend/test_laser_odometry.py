@@ -129,3 +129,20 @@ def test_short_real_log_beats_odometry():
     odo = Trajectory(stamps, np.array([f.odometry for f in frames]))
     assert ate(est, ref)[0] < 0.5 * ate(odo, ref)[0]
     assert lo.stats.fallbacks <= 5
+
+
+def test_scalar_pose_helpers_equal_se2_bit_for_bit():
+    """The front end's float-triple compose/between do se2's arithmetic exactly."""
+    from bsslam.frontend.laser_odometry import _between, _compose
+    from bsslam.se2 import between, compose
+
+    rng = np.random.default_rng(3)
+    a = rng.uniform(-50.0, 50.0, size=(2000, 3))
+    b = rng.uniform(-50.0, 50.0, size=(2000, 3))
+    a[:, 2] = rng.uniform(-7.0, 7.0, 2000)
+    b[:, 2] = rng.uniform(-7.0, 7.0, 2000)
+    a[:5, 2] = [0.0, np.pi, -np.pi, 2 * np.pi, -0.0]
+    for i in range(a.shape[0]):
+        pa, pb = tuple(a[i].tolist()), tuple(b[i].tolist())
+        assert np.array_equal(np.array(_compose(pa, pb)), compose(a[i], b[i]))
+        assert np.array_equal(np.array(_between(pa, pb)), between(a[i], b[i]))

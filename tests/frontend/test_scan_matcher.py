@@ -298,5 +298,34 @@ def test_score_grid_follows_in_place_additions_and_pickles_without_views():
     assert np.all(after >= before) and np.any(after > before)
     np.testing.assert_allclose(after, field.score_poses(scan, poses, _offset_grid(4, 1)), rtol=1e-5, atol=1e-7)
     copy = pickle.loads(pickle.dumps(field))
-    assert "_window_views" not in copy.__dict__
+    assert "_row_views" not in copy.__dict__
     np.testing.assert_array_equal(copy.score_grid(scan, poses, 4, 1), after)
+
+
+def test_scan_points_drops_the_beams_valid_beams_drops():
+    """scan_points' two comparisons against valid_beams (plus the max_range_m cut), with
+    NaN, ±inf, negative, zero and boundary ranges, with and without a laser offset."""
+    from dataclasses import replace
+
+    from bsslam.config import SegmentationConfig
+    from bsslam.scan.segment import valid_beams
+
+    rng = np.random.default_rng(2)
+    cfg = replace(CFG, max_range_m=25.0)
+    for max_range in (20.0, 30.0, 81.9):
+        ranges = rng.uniform(-1.0, 40.0, 361)
+        ranges[::17] = np.nan
+        ranges[1::23] = np.inf
+        ranges[2::29] = -np.inf
+        ranges[3::31] = 0.0
+        ranges[4::37] = cfg.min_range_m
+        ranges[5::41] = max_range
+        ranges[6::43] = cfg.max_range_m
+        scan = LaserScan(0.0, np.radians(np.linspace(-90.0, 90.0, 361)), ranges, max_range)
+        mask, _ = valid_beams(scan, SegmentationConfig(min_range_m=cfg.min_range_m))
+        mask &= np.nan_to_num(scan.ranges, nan=np.inf) < cfg.max_range_m
+        for offset in (None, np.array([0.1, -0.05, 0.02])):
+            o = np.zeros(3) if offset is None else offset
+            a, r = scan.angles[mask], scan.ranges[mask]
+            expected = np.column_stack((o[0] + r * np.cos(o[2] + a), o[1] + r * np.sin(o[2] + a)))
+            np.testing.assert_array_equal(scan_points(scan, offset, cfg), expected)

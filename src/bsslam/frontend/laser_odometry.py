@@ -19,6 +19,7 @@ a consumer that treats them as independent odometry (the EKF) ignores that.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -27,7 +28,33 @@ import numpy as np
 from bsslam.dataset import Frame
 from bsslam.config import FrontendConfig
 from bsslam.frontend.scan_matcher import MatchResult, ReferenceMap, estimate_normals, scan_points, voxel_thin
-from bsslam.se2 import between, compose
+
+
+# One pose at a time, :mod:`bsslam.se2`'s compose/between cost ~20 µs of numpy calls each
+# (several per scan); these do the same float arithmetic, in the same order, on Python
+# floats (math.cos/sin and numpy's agree bit for bit, and Python's float ``%`` is numpy's
+# ``mod``; tests/frontend check them against se2).
+
+def _wrap(a: float) -> float:
+    return math.pi - (math.pi - a) % (2.0 * math.pi)
+
+
+def _compose(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:
+    """:func:`bsslam.se2.compose` of two poses given as float triples."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return (a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], _wrap(a[2] + b[2]))
+
+
+def _between(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:
+    """:func:`bsslam.se2.between` (``compose(inverse(a), b)``) of float triples."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    inv = (-c * a[0] - s * a[1], s * a[0] - c * a[1], _wrap(-a[2]))
+    return _compose(inv, b)
+
+
+def _triple(pose) -> tuple[float, float, float]:
+    x, y, phi = np.asarray(pose, dtype=float).reshape(3).tolist()
+    return x, y, phi
 
 
 @dataclass(frozen=True)
@@ -81,6 +108,8 @@ class _Keyframe:
     points: np.ndarray        # (k, 2) thinned points, robot frame
     normals: np.ndarray       # (k, 2) their normals, robot frame
     linear: np.ndarray        # (k,) line-like
+    world: np.ndarray         # (k, 2) the points in the front-end frame (the pose is fixed)
+    world_normals: np.ndarray  # (k, 2) their normals in the front-end frame
 
 
 class LaserOdometry:
@@ -119,21 +148,23 @@ class LaserOdometry:
             self._add_keyframe(self.pose, points)
             return FrontendStep(None, None, self.pose.copy(), None, None, False, True)
 
-        odo_inc = between(self._prev_odometry, odometry)
+        odometry3 = _triple(odometry)
+        odo_inc = np.array(_between(_triple(self._prev_odometry), odometry3))
         self._prev_odometry = odometry
         odo_cov = self.odometry_covariance(odo_inc)
         prev = self.pose
+        prev3 = _triple(prev)
         # Robot-frame (of the previous pose) ↔ front-end frame: rotate by its heading.
         rot = np.eye(3)
         c, s = np.cos(prev[2]), np.sin(prev[2])
         rot[:2, :2] = [[c, -s], [s, c]]
-        guess = compose(prev, odo_inc)
+        guess = np.array(_compose(prev3, odo_inc.tolist()))
         match = None
         reference = self._submap()
         if reference is not None:
             match = reference.match(points, guess, rot @ odo_cov @ rot.T)
         if match is not None and match.ok:
-            increment = between(prev, match.pose)
+            increment = np.array(_between(prev3, match.pose.tolist()))
             covariance = rot.T @ match.covariance @ rot
             covariance = 0.5 * (covariance + covariance.T)
             self.stats.matched += 1
@@ -144,7 +175,7 @@ class LaserOdometry:
             reason = "too_few_reference_points" if match is None else match.reason
             self.stats.fallbacks += 1
             self.stats.reasons[reason] = self.stats.reasons.get(reason, 0) + 1
-        self.pose = compose(prev, increment)
+        self.pose = np.array(_compose(prev3, increment.tolist()))
         keyframe = self._is_keyframe(self.pose)
         if keyframe:
             self._add_keyframe(self.pose, points)
@@ -155,7 +186,7 @@ class LaserOdometry:
     def _is_keyframe(self, pose: np.ndarray) -> bool:
         if not self._keyframes:
             return True
-        rel = between(self._keyframes[-1].pose, pose)
+        rel = _between(_triple(self._keyframes[-1].pose), _triple(pose))
         return bool(np.hypot(rel[0], rel[1]) >= self.config.keyframe_distance_m
                     or abs(rel[2]) >= self.config.keyframe_angle_rad)
 
@@ -163,23 +194,24 @@ class LaserOdometry:
         keep = voxel_thin(points, self.config.submap_voxel_m)
         pts = points[keep]
         normals, linear = estimate_normals(pts, self.config.normal_neighbours)
-        kf = _Keyframe(np.asarray(pose, dtype=float).copy(), pts, normals, linear)
+        pose = np.asarray(pose, dtype=float).copy()
+        kf = _Keyframe(pose, pts, normals, linear, *self._to_world(pose, pts, normals))
         self._keyframes.append(kf)
         self.stats.keyframes += 1
         self._since_rebuild += 1
         # Rebuilding the fields of the whole submap costs a few ms; in between, the new
         # keyframe is added in place (old keyframes then stay a few keyframes longer).
         if self._reference is not None and self._since_rebuild < self.config.submap_rebuild_every:
-            world, world_normals = self._to_world(kf)
-            if self._reference.extend(world, world_normals, kf.linear):
+            if self._reference.extend(kf.world, kf.world_normals, kf.linear):
                 return
         self._reference = None
 
     @staticmethod
-    def _to_world(kf: _Keyframe) -> tuple[np.ndarray, np.ndarray]:
-        c, s = np.cos(kf.pose[2]), np.sin(kf.pose[2])
+    def _to_world(pose: np.ndarray, points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Robot-frame points and normals (k, 2) at ``pose`` (3,) in the front-end frame."""
+        c, s = np.cos(pose[2]), np.sin(pose[2])
         R = np.array([[c, -s], [s, c]])
-        return kf.points @ R.T + kf.pose[:2], kf.normals @ R.T
+        return points @ R.T + pose[:2], normals @ R.T
 
     def _submap(self) -> ReferenceMap | None:
         """The reference of the last keyframes in the front-end frame (built lazily)."""
@@ -187,9 +219,8 @@ class LaserOdometry:
             return self._reference
         pts, nrm, lin = [], [], []
         for kf in self._keyframes:
-            world, world_normals = self._to_world(kf)
-            pts.append(world)
-            nrm.append(world_normals)
+            pts.append(kf.world)
+            nrm.append(kf.world_normals)
             lin.append(kf.linear)
         self._since_rebuild = 0
         points = np.concatenate(pts) if pts else np.zeros((0, 2))

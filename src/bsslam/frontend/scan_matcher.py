@@ -33,13 +33,17 @@ from functools import lru_cache
 import numpy as np
 from scipy.spatial import cKDTree
 
-from bsslam.config import SegmentationConfig
 from bsslam.errors import InputError
 from bsslam.config import FrontendConfig
 from bsslam.scan.laser_scan import LaserScan
-from bsslam.scan.segment import valid_beams
 from bsslam.se2 import compose
 from bsslam.trajectory import wrap_angle
+
+def _wrap(a: float) -> float:
+    """:func:`~bsslam.trajectory.wrap_angle` of one float (rad), the same arithmetic without
+    numpy's per-call cost (Python's float ``%`` is numpy's ``mod``)."""
+    return math.pi - (math.pi - a) % (2.0 * math.pi)
+
 
 #: Reasons a match is not trusted (``MatchResult.reason``); "ok" otherwise.
 FAIL_REASONS = ("too_few_scan_points", "too_few_reference_points", "too_few_correspondences", "poor_score")
@@ -52,15 +56,24 @@ FAIL_REASONS = ("too_few_scan_points", "too_few_reference_points", "too_few_corr
 def scan_points(scan: LaserScan, laser_offset: np.ndarray | None, config: FrontendConfig) -> np.ndarray:
     """(m, 2) end points (m) of the usable beams of ``scan`` in the robot frame.
 
-    Beams are dropped by :func:`bsslam.scan.valid_beams` (NaN/inf, no return, at or below
-    ``min_range_m``) and at or beyond ``max_range_m``; the laser offset is applied.
+    Beams are dropped as :func:`bsslam.scan.valid_beams` drops them (NaN/inf, no return at
+    or above the scan's ``max_range``, at or below ``min_range_m``) and at or beyond
+    ``max_range_m``; the laser offset is applied.
     """
-    mask, _ = valid_beams(scan, SegmentationConfig(min_range_m=config.min_range_m))
-    mask &= np.nan_to_num(scan.ranges, nan=np.inf) < config.max_range_m
-    angles, ranges = scan.angles[mask], scan.ranges[mask]
-    offset = np.zeros(3) if laser_offset is None else np.asarray(laser_offset, dtype=float)
-    c, s = np.cos(offset[2] + angles), np.sin(offset[2] + angles)
-    return np.column_stack((offset[0] + ranges * c, offset[1] + ranges * s))
+    ranges = scan.ranges
+    # valid_beams' rules in two comparisons (NaN compares False, ±inf fails one of them);
+    # tests/frontend check the two agree.
+    mask = (ranges > config.min_range_m) & (ranges < min(scan.max_range, config.max_range_m))
+    angles, ranges = scan.angles[mask], ranges[mask]
+    if laser_offset is None:
+        ox, oy, otheta = 0.0, 0.0, 0.0
+    else:
+        ox, oy, otheta = np.asarray(laser_offset, dtype=float).reshape(3).tolist()
+    c, s = np.cos(otheta + angles), np.sin(otheta + angles)
+    points = np.empty((ranges.shape[0], 2))
+    points[:, 0] = ox + ranges * c
+    points[:, 1] = oy + ranges * s
+    return points
 
 
 def voxel_thin(points: np.ndarray, cell_m: float) -> np.ndarray:
@@ -75,11 +88,16 @@ def voxel_thin(points: np.ndarray, cell_m: float) -> np.ndarray:
     return np.sort(first)
 
 
+@lru_cache(maxsize=1024)
 def even_subset(n: int, k: int) -> np.ndarray:
-    """Indices of at most ``k`` of ``n`` items, evenly spread (all when n ≤ k)."""
+    """Indices of at most ``k`` of ``n`` items, evenly spread (all when n ≤ k); read-only
+    (cached: the same few (n, k) recur scan after scan)."""
     if n <= k:
-        return np.arange(n)
-    return np.unique(np.linspace(0, n - 1, k).round().astype(np.intp))
+        sub = np.arange(n)
+    else:
+        sub = np.unique(np.linspace(0, n - 1, k).round().astype(np.intp))
+    sub.flags.writeable = False
+    return sub
 
 
 def _kdtree(points: np.ndarray) -> cKDTree:
@@ -167,6 +185,11 @@ class LikelihoodField:
         lo, hi = 2 * self.pad + self.radius + 1, np.array(self.shape) - 2 * self.pad - self.radius - 2
         inside = np.all((c >= lo) & (c <= hi), axis=1)
         self._splat_cells(np.unique(c[inside, 0] * self.shape[1] + c[inside, 1]))
+        # The decimated copies of :meth:`_rows` are stale now (step-1 views are not copies).
+        rows = self.__dict__.get("_row_views")
+        if rows:
+            for key in [key for key in rows if key[0] != 1]:
+                del rows[key]
 
     def _splat_cells(self, occupied: np.ndarray) -> None:
         target = (occupied[:, None] + self.kernel_offset[None, :]).ravel()
@@ -192,46 +215,77 @@ class LikelihoodField:
         return np.take(self.values, idx).sum(axis=2, dtype=np.float32) / points.shape[0]
 
     def __getstate__(self) -> dict:
-        # The cached window views would pickle as (k²× larger) copies.
+        # The cached row views and decimated copies are derived data.
         state = dict(self.__dict__)
-        state.pop("_window_views", None)
+        state.pop("_row_views", None)
         return state
 
-    def _windows(self, reach: int, step: int) -> np.ndarray:
-        """(nx − 2·reach, ny − 2·reach, k, k) view: the cells ``reach`` around each cell,
-        every ``step``-th. Made once per (reach, step): it is a view, so it follows
-        :meth:`add`'s in-place updates, and making one costs ~0.1 ms."""
-        cache = self.__dict__.setdefault("_window_views", {})
-        view = cache.get((reach, step))
-        if view is None:
-            view = np.lib.stride_tricks.sliding_window_view(
-                self.values.reshape(self.shape), (2 * reach + 1, 2 * reach + 1))[..., ::step, ::step]
-            cache[(reach, step)] = view
-        return view
+    def _rows(self, step: int, width: int) -> tuple[np.ndarray, int, np.ndarray, np.ndarray]:
+        """Every run of ``width`` cells ``step`` apart along y as one item, for gathering
+        whole window rows of :meth:`score_grid` (``width`` = 2k + 1, reach k·step).
+
+        Returns:
+            rows: 1-D view of opaque ``width``·4-byte items, item ``i`` holding the floats
+                ``i, i + 1, …`` of a (step, nx, ⌈ny/step⌉) array ``D[par, x, j] =
+                field[x, j·step + par]`` (for step 1 that is the field itself);
+            x_stride: items from one x cell to the next;
+            y_first: (ny,) ``x·x_stride + y_first[y]`` is the item of the first row of the
+                window centred on cell (x, y) (for reach ≤ x, y < n − reach);
+            row_offset: (width,) items from the window's first row to each of its rows.
+
+        Gathering one item per (pose, point, row) copies a whole window row at a time:
+        ``width`` fewer indexed copies than gathering cells, and the same float32 values.
+        For step 1 the view follows :meth:`add`'s in-place updates; the decimated copy for
+        step > 1 is dropped by :meth:`add` and made again when needed (~0.1 ms)."""
+        cache = self.__dict__.setdefault("_row_views", {})
+        key = (step, width)
+        rows = cache.get(key)
+        if rows is None:
+            nx, ny = self.shape
+            reach = (width // 2) * step
+            y0 = np.arange(ny) - reach                     # the window's first column
+            if step == 1:
+                deci = self.values
+                x_stride = ny
+                y_first = y0 - reach * x_stride
+            else:
+                x_stride = -(-ny // step)
+                deci = np.zeros((step, nx, x_stride), dtype=np.float32)
+                grid = self.values.reshape(nx, ny)
+                for par in range(step):
+                    deci[par, :, :(ny - par + step - 1) // step] = grid[:, par::step]
+                deci = deci.ravel()
+                y_first = (y0 % step) * (nx * x_stride) + y0 // step - reach * x_stride
+            view = np.ndarray(shape=(deci.shape[0] - width + 1,), dtype=np.dtype((np.void, 4 * width)),
+                              buffer=deci, strides=(4,))
+            rows = (view, x_stride, y_first, np.arange(width) * (step * x_stride))
+            cache[key] = rows
+        return rows
 
     def score_grid(self, points: np.ndarray, poses: np.ndarray, half_cells: int, step_cells: int) -> np.ndarray:
         """:meth:`score_poses` for the offsets ``_offset_grid(half_cells, step_cells)`` (in
         that order, x offset major): (p, t) mean field values, t = (2·(half//step) + 1)².
 
         The offsets form a square grid of cells, so each moved point reads one strided
-        window of the 2-D field: one gather of (p, n, k, k) values through a sliding-window
-        view instead of building and gathering a (p, t, n) flat index array (about 4×
-        faster). ``half_cells`` must not exceed ``pad`` (the clipped base cell then keeps
-        the window inside the grid).
+        window of the 2-D field, row by row (:meth:`_rows`): one gather of (p, n, k) rows
+        of k values instead of a (p, t, n) flat index array. ``half_cells`` must not exceed
+        ``pad`` (the clipped base cell then keeps the window inside the grid).
         """
         if half_cells > self.pad:
             raise ValueError("offsets beyond the field's padding")
         c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
         wx = c[:, None] * points[None, :, 0] - s[:, None] * points[None, :, 1] + poses[:, 0:1]
         wy = s[:, None] * points[None, :, 0] + c[:, None] * points[None, :, 1] + poses[:, 1:2]
-        k = half_cells // step_cells
-        reach = k * step_cells                                              # cells, ≤ pad
+        width = 2 * (half_cells // step_cells) + 1
+        nx, ny = self.shape
         ix = np.floor((wx - self.origin[0]) / self.resolution).astype(np.intp)
         iy = np.floor((wy - self.origin[1]) / self.resolution).astype(np.intp)
-        ix = np.clip(ix, self.pad, self.shape[0] - 1 - self.pad) - reach
-        iy = np.clip(iy, self.pad, self.shape[1] - 1 - self.pad) - reach
-        windows = self._windows(reach, step_cells)
-        patches = windows[ix, iy].reshape(poses.shape[0], points.shape[0], -1)   # (p, n, t)
+        np.clip(ix, self.pad, nx - 1 - self.pad, out=ix)                     # window centre
+        np.clip(iy, self.pad, ny - 1 - self.pad, out=iy)
+        rows, x_stride, y_first, row_offset = self._rows(step_cells, width)
+        first = ix * x_stride + y_first[iy]
+        patches = rows[first[:, :, None] + row_offset].view(np.float32).reshape(
+            poses.shape[0], points.shape[0], width * width)                  # (p, n, t)
         # Sum over the points as a float32 matrix product (BLAS) rather than a strided
         # reduction over the middle axis.
         ones = np.ones(points.shape[0], dtype=np.float32)
@@ -259,6 +313,12 @@ class _SearchGrid:
         fine_rot: (f,) fine rotations relative to a coarse candidate (rad).
         fine_half: the fine offsets are ``_offset_grid(fine_half, 1)`` (fine cells);
             fine_offsets_m (t', 2) in m.
+        near_offsets: (t, t) bool, the coarse offsets closer than two coarse steps (the
+            neighbourhood of a coarse maximum, :func:`_distinct_maxima`).
+        rot_poses: (r, 3) poses (0, 0, rot_steps): the coarse poses less the guess.
+        fine_trans_prior: (t, t') the translation part of the quadratic penalty (without
+            the weight) of fine offset t' around coarse offset t.
+        fine_rot_prior: (r, f) its rotation part, fine rotation f around coarse rotation r.
     """
 
     rot_steps: np.ndarray
@@ -270,6 +330,9 @@ class _SearchGrid:
     fine_rot: np.ndarray
     fine_half: int
     fine_offsets_m: np.ndarray
+    near_offsets: np.ndarray
+    fine_trans_prior: np.ndarray
+    fine_rot_prior: np.ndarray
 
 
 @lru_cache(maxsize=16)
@@ -285,9 +348,15 @@ def _search_grid(cfg: FrontendConfig, res_c: float, res_f: float) -> _SearchGrid
     n_fine_rot = int(round(cfg.coarse_step_rad / cfg.fine_step_rad))
     fine_rot = cfg.fine_step_rad * np.arange(-n_fine_rot, n_fine_rot + 1)
     half_f = int(round(cfg.coarse_step_m / res_f))
+    fine_offsets_m = _offset_grid(half_f, 1) * res_f
+    dx = offsets_m[:, 0:1] + fine_offsets_m[None, :, 0]
+    dy = offsets_m[:, 1:2] + fine_offsets_m[None, :, 1]
+    trans = (dx * dx + dy * dy) / (2 * cfg.search_window_m ** 2)
+    rot = (rot_steps[:, None] + fine_rot[None, :]) ** 2 / (2 * cfg.search_window_rad ** 2)
     grid = _SearchGrid(rot_steps, half_c, step_c, offsets, offsets_m, penalty, fine_rot, half_f,
-                       _offset_grid(half_f, 1) * res_f)
-    for a in (grid.rot_steps, grid.offsets, grid.offsets_m, grid.coarse_penalty, grid.fine_rot, grid.fine_offsets_m):
+                       fine_offsets_m, _near_offsets(offsets, 2 * step_c), trans, rot)
+    for a in (grid.rot_steps, grid.offsets, grid.offsets_m, grid.coarse_penalty, grid.fine_rot, grid.fine_offsets_m,
+              grid.near_offsets, grid.fine_trans_prior, grid.fine_rot_prior):
         a.flags.writeable = False          # shared between calls
     return grid
 
@@ -364,7 +433,14 @@ class ReferenceMap:
                                           window + config.coarse_step_m)
         self.line_points = points[linear]
         self.line_normals = np.asarray(normals, dtype=float)[linear]
+        self._index_lines()
+
+    def _index_lines(self) -> None:
+        """KD-tree of the line points, and their points and normals side by side (k, 4)
+        so that a correspondence is one gather."""
         self.tree = _kdtree(self.line_points)
+        self._n_line = self.line_points.shape[0]
+        self._line_qn = np.concatenate((self.line_points, self.line_normals), axis=1)
 
     def extend(self, points: np.ndarray, normals: np.ndarray, linear: np.ndarray) -> bool:
         """Add reference points (with normals and line flags) in place: both fields are
@@ -379,7 +455,7 @@ class ReferenceMap:
         self.size = self.points.shape[0]
         self.line_points = np.concatenate((self.line_points, points[linear]))
         self.line_normals = np.concatenate((self.line_normals, np.asarray(normals, dtype=float)[linear]))
-        self.tree = _kdtree(self.line_points)
+        self._index_lines()
         return True
 
     # -- correlative search ------------------------------------------------------------------
@@ -390,27 +466,28 @@ class ReferenceMap:
         cfg = self.config
         guess = np.asarray(guess, dtype=float)
         grid = _search_grid(cfg, self.coarse.resolution, self.fine.resolution)
-        rots = guess[2] + grid.rot_steps
-        poses = np.column_stack((np.full_like(rots, guess[0]), np.full_like(rots, guess[1]), rots))
+        poses = np.empty((grid.rot_steps.shape[0], 3))
+        poses[:, 0], poses[:, 1] = guess[0], guess[1]
+        poses[:, 2] = guess[2] + grid.rot_steps
         score = self.coarse.score_grid(points, poses, grid.coarse_half, grid.coarse_step)   # (r, t)
         # Quadratic tie-break towards the guess: −w at the window's corner.
         score = score - grid.coarse_penalty
-        candidates = np.array(_distinct_maxima(score, cfg.coarse_candidates, rot_sep=2, off=grid.offsets,
-                                               off_sep=2 * grid.coarse_step), dtype=np.intp).reshape(-1, 2)
+        candidates = _distinct_maxima(score, cfg.coarse_candidates, rot_sep=2, off=grid.offsets,
+                                      off_sep=2 * grid.coarse_step, near_off=grid.near_offsets, overwrite=True)
+        cand_rot, cand_off = (list(c) for c in zip(*candidates))
         # Fine level: ±1 coarse step (rotation and translation) around each candidate: the
         # blurred coarse peak can sit a whole step from the true one.
-        shift = grid.offsets_m[candidates[:, 1]]                                  # (k, 2) m from the guess
-        turn = grid.rot_steps[candidates[:, 0]]                                   # (k,) rad from the guess
-        centres = np.column_stack((guess[0] + shift[:, 0], guess[1] + shift[:, 1], rots[candidates[:, 0]]))
+        shift = grid.offsets_m[cand_off]                                          # (k, 2) m from the guess
         n_fine = grid.fine_rot.shape[0]
-        fine_poses = np.repeat(centres, n_fine, axis=0)
-        fine_poses[:, 2] += np.tile(grid.fine_rot, centres.shape[0])
+        fine_poses = np.empty((len(candidates), n_fine, 3))
+        fine_poses[:, :, 0] = (guess[0] + shift[:, 0])[:, None]
+        fine_poses[:, :, 1] = (guess[1] + shift[:, 1])[:, None]
+        fine_poses[:, :, 2] = poses[cand_rot, 2][:, None] + grid.fine_rot
+        fine_poses = fine_poses.reshape(-1, 3)
         fine = self.fine.score_grid(points, fine_poses, grid.fine_half, 1)
         # The same penalty, split into its translation (k, t) and rotation (k, f) parts.
-        dx = shift[:, 0:1] + grid.fine_offsets_m[None, :, 0]
-        dy = shift[:, 1:2] + grid.fine_offsets_m[None, :, 1]
-        trans = (dx * dx + dy * dy) / (2 * cfg.search_window_m ** 2)
-        rot = (turn[:, None] + grid.fine_rot[None, :]) ** 2 / (2 * cfg.search_window_rad ** 2)
+        trans = grid.fine_trans_prior[cand_off]
+        rot = grid.fine_rot_prior[cand_rot]
         fprior = (trans[:, None, :] + rot[:, :, None]).reshape(fine.shape)
         total = fine - cfg.search_prior_weight * fprior
         p, t = divmod(int(np.argmax(total)), total.shape[1])
@@ -428,39 +505,81 @@ class ReferenceMap:
             pose (3,), the scan's information (3, 3) in units of 1/σ² (without the prior),
             the final residuals (n,) (NaN where no correspondence), weights (n,), iterations.
         """
+        pose, info, Jr, w, found, it = self._refine(points, start, prior_mean, prior_information)
+        residuals = np.full(found.shape[0], np.nan)
+        residuals[found] = Jr[:, 3]
+        weights = np.zeros(found.shape[0])
+        weights[found] = w
+        return pose, info, residuals, weights, it
+
+    def _refine(self, points: np.ndarray, start: np.ndarray, prior_mean: np.ndarray, prior_information: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+        """:meth:`refine`, returning the final residuals as :meth:`_linearise` does: pose
+        (3,), information (3, 3), Jr (m, 4), w (m,), found (n,), iterations."""
         cfg = self.config
-        x = np.asarray(start, dtype=float).copy()
+        points = np.ascontiguousarray(points, dtype=float)
+        x0, x1, x2 = (float(v) for v in start)
+        m0, m1, m2 = (float(v) for v in prior_mean)
         sigma2 = cfg.range_sigma_m ** 2 * cfg.covariance_inflation
         gate = cfg.icp_max_distance_m
+        # The pose is kept as three floats and the 3×3 algebra done with scalars where that
+        # is exact: a few-element numpy call costs more than its arithmetic (~7 iterations
+        # per scan).
         it = 0
         for it in range(1, cfg.icp_iterations + 1):
-            r, J, w, _ = self._residuals(points, x, gate)
+            Jr, w, _ = self._linearise(points, x0, x1, x2, gate)
             # [H | g] of the scan in one product: Jᵀ W [J | r].
-            Jw = J * w[:, None]
-            Hg = Jw.T @ np.column_stack((J, r)) / sigma2
-            e = x - prior_mean
-            e[2] = wrap_angle(e[2])
+            Hg = (Jr[:, :3] * w[:, None]).T @ Jr / sigma2
+            e = np.array((x0 - m0, x1 - m1, _wrap(x2 - m2)))
             H = Hg[:, :3] + prior_information
             g = Hg[:, 3] + prior_information @ e
             try:
                 delta = -np.linalg.solve(H, g)
             except np.linalg.LinAlgError:
                 break
-            x = x + delta
-            x[2] = wrap_angle(x[2])
-            small = math.hypot(delta[0], delta[1]) < 2e-4 and abs(delta[2]) < 2e-4
+            d0, d1, d2 = delta.tolist()
+            x0, x1, x2 = x0 + d0, x1 + d1, _wrap(x2 + d2)
+            small = math.hypot(d0, d1) < 2e-4 and abs(d2) < 2e-4
             if small and gate <= cfg.icp_min_distance_m:
                 break
             # The correlative start is within a fine step: the wide gate is only needed to
             # pull in points the first step, then it shrinks to the final one.
             gate = max(cfg.icp_min_distance_m, 0.5 * gate)
-        r, J, w, found = self._residuals(points, x, gate)
+        Jr, w, found = self._linearise(points, x0, x1, x2, gate)
+        J = np.ascontiguousarray(Jr[:, :3])
         info = (J * w[:, None]).T @ J
-        residuals = np.full(points.shape[0], np.nan)
-        residuals[found] = r
-        weights = np.zeros(points.shape[0])
-        weights[found] = w
-        return x, info, residuals, weights, it
+        return np.array((x0, x1, x2)), info, Jr, w, found, it
+
+    def _linearise(self, points: np.ndarray, x0: float, x1: float, x2: float, gate: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Point-to-line residuals of robot-frame ``points`` (n, 2) moved by the pose
+        (x0 m, x1 m, x2 rad) against their nearest line-like reference point within ``gate``
+        (m), with their Jacobian.
+
+        Returns:
+            Jr (m, 4): the Jacobian (m, 3) of the residuals in (x, y, φ) and, in the last
+            column, the residuals nᵀ(R p + t − q) (m); w (m,) Huber weights; found (n,)
+            which points had a correspondence (m of them).
+        """
+        c, s = math.cos(x2), math.sin(x2)
+        rotated = points @ np.array(((c, s), (-s, c)))                     # R p, (n, 2)
+        moved = rotated + (x0, x1)
+        _, idx = self.tree.query(moved, distance_upper_bound=gate)
+        found = idx < self._n_line                       # a miss is reported as index m
+        if not found.all():
+            idx, rotated, moved = idx[found], rotated[found], moved[found]
+        qn = self._line_qn[idx]                                            # (m, 4): q, n
+        n = qn[:, 2:]
+        Jr = np.empty((idx.shape[0], 4))
+        Jr[:, :2] = n
+        # ∂(R p)/∂φ = (−(R p)_y, (R p)_x)
+        Jr[:, 2] = n[:, 1] * rotated[:, 0] - n[:, 0] * rotated[:, 1]
+        r = Jr[:, 3]
+        np.einsum("ij,ij->i", n, moved - qn[:, :2], out=r)
+        # Huber: 1 inside the threshold, huber/|r| outside.
+        huber = self.config.huber_m
+        w = huber / np.maximum(np.abs(r), huber)
+        return Jr, w, found
 
     def _residuals(self, points: np.ndarray, x: np.ndarray, gate: float):
         """Point-to-line residuals of robot-frame ``points`` (n, 2) moved by the pose ``x``
@@ -470,23 +589,9 @@ class ReferenceMap:
             r (m,) residuals nᵀ(R p + t − q) (m), J (m, 3) their Jacobian in (x, y, φ),
             w (m,) Huber weights, found (n,) which points had a correspondence (m of them).
         """
-        c, s = math.cos(x[2]), math.sin(x[2])
-        rotated = points @ np.array([[c, s], [-s, c]])                     # R p, (n, 2)
-        moved = rotated + x[:2]
-        dist, idx = self.tree.query(moved, distance_upper_bound=gate)
-        found = np.isfinite(dist)
-        if not found.all():
-            idx, rotated, moved = idx[found], rotated[found], moved[found]
-        q, n = self.line_points[idx], self.line_normals[idx]
-        r = np.einsum("ij,ij->i", n, moved - q)
-        J = np.empty((r.shape[0], 3))
-        J[:, :2] = n
-        # ∂(R p)/∂φ = (−(R p)_y, (R p)_x)
-        J[:, 2] = n[:, 1] * rotated[:, 0] - n[:, 0] * rotated[:, 1]
-        # Huber: 1 inside the threshold, huber/|r| outside.
-        huber = self.config.huber_m
-        w = huber / np.maximum(np.abs(r), huber)
-        return r, J, w, found
+        Jr, w, found = self._linearise(np.ascontiguousarray(points, dtype=float), float(x[0]), float(x[1]),
+                                       float(x[2]), gate)
+        return Jr[:, 3], Jr[:, :3], w, found
 
     # -- the whole match ---------------------------------------------------------------------
 
@@ -523,21 +628,19 @@ class ReferenceMap:
 
         start, correlation = self.correlative(search, guess)
         prior_info = np.linalg.inv(prior_covariance)
-        pose, info, residuals, weights, iterations = self.refine(pts, start, guess, prior_info)
+        pose, info, Jr, w, found, iterations = self._refine(pts, start, guess, prior_info)
 
-        found = np.isfinite(residuals)
-        inliers = int(np.count_nonzero(found & (np.abs(np.nan_to_num(residuals)) < cfg.inlier_distance_m)))
+        r = Jr[:, 3]                                      # residuals of the points found
+        inliers = int(np.count_nonzero(np.abs(r) < cfg.inlier_distance_m))
         n = pts.shape[0]
         score = inliers / n
         base = dict(correlation=correlation, points=n, inliers=inliers, iterations=iterations, information=info)
-        if np.count_nonzero(found) < cfg.min_points:
+        if r.shape[0] < cfg.min_points:
             return fail("too_few_correspondences", **base)
         if score < cfg.min_inlier_fraction:
             return fail("poor_score", score, **base)
 
         # Residual σ: the stated one, or the (Huber-weighted) estimate when larger.
-        r = residuals[found]
-        w = weights[found]
         dof = max(1.0, float(np.sum(w)) - 3.0)
         sigma2_hat = float(np.sum(w * r * r)) / dof
         sigma2 = max(cfg.range_sigma_m ** 2, sigma2_hat) * cfg.covariance_inflation
@@ -549,32 +652,41 @@ class ReferenceMap:
         return MatchResult(pose, cov, score, True, "ok", degenerate, **base)
 
 
-def _distinct_maxima(score: np.ndarray, k: int, *, rot_sep: int, off: np.ndarray, off_sep: int) -> list[tuple[int, int]]:
+def _distinct_maxima(score: np.ndarray, k: int, *, rot_sep: int, off: np.ndarray, off_sep: int,
+                     near_off: np.ndarray | None = None, overwrite: bool = False) -> list[tuple[int, int]]:
     """Up to ``k`` (rotation, offset) indices of the highest scores, each at least
     ``rot_sep`` rotation steps or ``off_sep`` cells from those already taken.
 
     Args:
-        score: (r, t) scores (rotations × offsets); not modified.
+        score: (r, t) scores (rotations × offsets); not modified unless ``overwrite``.
         off: (t, 2) the offsets (cells) of the columns.
+        near_off: (t, t) bool, ``_near_offsets(off, off_sep)`` if already made.
+        overwrite: ``score`` is a float64 scratch array that may be used up.
 
-    Greedy: take the highest remaining score, then knock out its neighbourhood (an outer
-    product of a rotation mask and an offset mask) and repeat; ``k`` argmax passes over the
-    (r, t) array instead of a full sort. Ties go to the lowest flat index.
+    Greedy: take the highest remaining score, then knock out its neighbourhood (a band
+    of rotations × the offsets near it) and repeat; ``k`` argmax passes over the (r, t)
+    array instead of a full sort. Ties go to the lowest flat index.
     """
-    left = np.array(score, dtype=float).ravel()     # a copy: knocked-out entries become −inf
-    n_rot, n_off = score.shape
-    rot_index = np.arange(n_rot)
+    left = score if overwrite else np.array(score, dtype=float)   # knocked-out entries become −inf
+    if near_off is None:
+        near_off = _near_offsets(off, off_sep)
+    n_rot, n_off = left.shape
+    flat = left.reshape(-1)
     taken: list[tuple[int, int]] = []
-    for _ in range(min(k, left.shape[0])):
-        j = int(np.argmax(left))
-        if left[j] == -np.inf:
+    for _ in range(min(k, flat.shape[0])):
+        j = int(flat.argmax())
+        if flat[j] == -np.inf:
             break
         r, t = divmod(j, n_off)
         taken.append((r, t))
-        near_rot = np.abs(rot_index - r) < rot_sep
-        near_off = np.max(np.abs(off - off[t]), axis=1) < off_sep
-        left.reshape(n_rot, n_off)[np.ix_(near_rot, near_off)] = -np.inf
+        # |rotation − r| < rot_sep: a band of rows.
+        left[max(r - rot_sep + 1, 0):max(r + rot_sep, 0), near_off[t]] = -np.inf
     return taken
+
+
+def _near_offsets(off: np.ndarray, off_sep: int) -> np.ndarray:
+    """(t, t) bool: offsets ``off`` (t, 2) less than ``off_sep`` cells apart on both axes."""
+    return np.max(np.abs(off[:, None, :] - off[None, :, :]), axis=2) < off_sep
 
 
 def match_scan(reference_points: np.ndarray, points: np.ndarray, guess: np.ndarray,
