@@ -188,11 +188,16 @@ class CurveBatch:
     def evaluate(self, curve: np.ndarray, t: np.ndarray, nder: int = 0) -> np.ndarray:
         """Points and derivatives 0 … nder at parameters t (m,) (clamped) on curves (m,):
         (nder+1, m, 2)."""
-        piece, u, _ = self.table.locate(curve, np.asarray(t, dtype=float))
         if nder == 0:
-            out = np.empty((1, u.shape[0], 2))
-            _horner_points(self.coeffs_t.take(piece, axis=2), u, out=out[0].T)
+            table = self.table
+            curve = np.asarray(curve, dtype=np.intp)
+            t = np.minimum(np.maximum(np.asarray(t, dtype=float), table.lo.take(curve)), table.hi.take(curve))
+            # no NaN guard as in locate: a NaN parameter gives a NaN point on any piece
+            piece = _search(table.piece_keys, curve, t)
+            out = np.empty((1, t.shape[0], 2))
+            _horner_points(self.coeffs_t.take(piece, axis=2), t - table.piece_lo.take(piece), out=out[0].T)
             return out
+        piece, u, _ = self.table.locate(curve, np.asarray(t, dtype=float))
         return horner_with_derivatives(self.coeffs.take(piece, axis=0), u, nder)
 
     def bboxes(self) -> np.ndarray:
@@ -308,12 +313,14 @@ def intersect_rays_batch(batch: CurveBatch, curve: np.ndarray, origins: np.ndarr
     curve = np.asarray(curve, dtype=np.intp)
     mu = np.asarray(angles, dtype=float)
     m = mu.shape[0]
-    origin = np.broadcast_to(np.asarray(origins, dtype=float), (m, 2))
+    origin = np.asarray(origins, dtype=float)
+    # one origin for all rays (the filter's case) stays a (2, 1) column
+    origin = origin[:, None] if origin.shape == (2,) else np.broadcast_to(origin, (m, 2)).T
     if curve.shape != (m,):
         raise SplineError(f"curve must have shape ({m},), got {curve.shape}")
     if samples_per_span < 2:
         raise SplineError(f"samples_per_span must be ≥ 2, got {samples_per_span}")
-    rays = _Rays(curve, origin[:, 0], origin[:, 1], np.cos(mu), np.sin(mu))
+    rays = _Rays(curve, origin, np.cos(mu), np.sin(mu))
     # rows t, range, x̃', ỹ' of every ray; NaN until a search succeeds
     out = np.full((4, m), np.nan)
     if t0 is None:
@@ -346,16 +353,21 @@ def intersect_rays_batch(batch: CurveBatch, curve: np.ndarray, origins: np.ndarr
 
 @dataclass(frozen=True)
 class _Rays:
-    """Curve index, origin and direction cosines of k rays, each (k,)."""
+    """Curve index (k,), origins (2, k) or one shared origin (2, 1) (m), direction
+    cosines cos, sin (k,) of k rays."""
 
     curve: np.ndarray
-    ox: np.ndarray
-    oy: np.ndarray
+    origin: np.ndarray
     cos: np.ndarray
     sin: np.ndarray
 
     def take(self, index: np.ndarray) -> _Rays:
-        return _Rays(self.curve[index], self.ox[index], self.oy[index], self.cos[index], self.sin[index])
+        origin = self.origin if self.origin.shape[1] == 1 else self.origin[:, index]
+        return _Rays(self.curve[index], origin, self.cos[index], self.sin[index])
+
+    def origin_of(self, index: np.ndarray) -> np.ndarray:
+        """(2, len(index)) or the shared (2, 1) origin of rays ``index``."""
+        return self.origin if self.origin.shape[1] == 1 else self.origin[:, index]
 
 
 def _ray_newton(batch: CurveBatch, rays: _Rays, t: np.ndarray, max_range: float
@@ -369,40 +381,58 @@ def _ray_newton(batch: CurveBatch, rays: _Rays, t: np.ndarray, max_range: float
     subset each step costs more calls than it saves.
     """
     table = batch.table
-    curve, cos, sin, ox, oy = rays.curve, rays.cos, rays.sin, rays.ox, rays.oy
+    curve, cos, sin, origin = rays.curve, rays.cos, rays.sin, rays.origin
+    k = t.shape[0]
+    # ỹ = cos·dy − sin·dx is summed as (−sin)·dx + cos·dy: the same rounding (negation is
+    # exact, addition commutes), in one product with the rows (−sin, cos)
+    across = np.empty((2, k))
+    np.negative(sin, out=across[0])
+    across[1] = cos
     lo, hi = table.lo.take(curve), table.hi.take(curve)
     t = np.minimum(np.maximum(t, lo), hi)      # np.clip, cheaper
     keys, piece_lo, coeffs = table.piece_keys, table.piece_lo, batch.coeffs_t
     key = curve.astype(complex)
-    moving = np.ones(t.shape, dtype=bool)
+    moving = np.ones(k, dtype=bool)
     with np.errstate(divide="ignore", invalid="ignore"):
         for _ in range(_RAY_MAX_NEWTON):
             key.imag = t                       # t stays inside the domain: no clamp
             piece = keys.searchsorted(key, side="right")
             piece -= 1
             s, ds = _value_and_slope(coeffs.take(piece, axis=2), t - piece_lo.take(piece))
-            yt = cos * (s[1] - oy) - sin * (s[0] - ox)
-            dyt = cos * ds[1] - sin * ds[0]
-            t_new = np.minimum(np.maximum(t - yt / dyt, lo), hi)
+            s -= origin
+            s *= across
+            ds *= across
+            yt = s[1] + s[0]
+            yt /= ds[1] + ds[0]
+            t_new = np.subtract(t, yt, out=yt)
+            np.maximum(t_new, lo, out=t_new)
+            np.minimum(t_new, hi, out=t_new)
             finite = np.isfinite(t_new)
-            step = np.abs(t_new - t) > _STEP_TOLERANCE * (1.0 + np.abs(t_new))
+            step = np.subtract(t_new, t)
+            np.abs(step, out=step)
+            threshold = np.abs(t_new)
+            threshold += 1.0
+            threshold *= _STEP_TOLERANCE
             finite &= moving                   # stopped rays keep their t
             np.copyto(t, t_new, where=finite)
             moving &= finite
-            moving &= step
+            moving &= step > threshold
             if not np.count_nonzero(moving):
                 break
         key.imag = t
         piece = keys.searchsorted(key, side="right")
         piece -= 1
         s, ds = _value_and_slope(coeffs.take(piece, axis=2), t - piece_lo.take(piece))
-    dx, dy = s[0] - ox, s[1] - oy
-    values = np.empty((4, t.shape[0]))
+    s -= origin
+    along = np.stack([cos, sin])
+    values = np.empty((4, k))
     values[0] = t
-    xt = np.add(cos * dx, sin * dy, out=values[1])
-    yt = cos * dy - sin * dx
-    np.add(cos * ds[0], sin * ds[1], out=values[2])
-    np.subtract(cos * ds[1], sin * ds[0], out=values[3])
+    xt, yt = s * along, s * across
+    xt = np.add(xt[0], xt[1], out=values[1])
+    yt = yt[1] + yt[0]
+    slope_x, slope_y = ds * along, ds * across
+    np.add(slope_x[0], slope_x[1], out=values[2])
+    np.add(slope_y[1], slope_y[0], out=values[3])
     ok = (np.abs(yt) <= _ROOT_TOLERANCE_M) & (xt > 0) & (xt <= max_range)
     return ok, values
 
@@ -459,14 +489,15 @@ def _ray_global_search(batch: CurveBatch, rays: _Rays, max_range: float, samples
     # Convex hull: rotated control points of each candidate piece, (K, p+1).
     cp = batch.control_points[table.window[piece]]
     c, s = rays.cos[ray, None], rays.sin[ray, None]
-    dx, dy = cp[:, :, 0] - rays.ox[ray, None], cp[:, :, 1] - rays.oy[ray, None]
+    ox, oy = rays.origin_of(ray)
+    dx, dy = cp[:, :, 0] - ox[:, None], cp[:, :, 1] - oy[:, None]
     xw, yw = c * dx + s * dy, c * dy - s * dx
     straddles = (yw.min(axis=1) <= 0) & (yw.max(axis=1) >= 0)
     reachable = (xw.max(axis=1) > 0) & (xw.min(axis=1) <= max_range)
     keep = straddles & reachable
     ray, piece = ray[keep], piece[keep]
-
-    cx, cy = beam_frame_polynomials(batch.coeffs[piece], rays.cos[ray], rays.sin[ray], rays.ox[ray], rays.oy[ray])
+    ox, oy = rays.origin_of(ray)
+    cx, cy = beam_frame_polynomials(batch.coeffs[piece], rays.cos[ray], rays.sin[ray], ox, oy)
 
     ok, hit_rays, best_pair, values = nearest_crossings(cx, cy, table.width[piece], ray, k,
                                                         samples_per_span, max_range)
