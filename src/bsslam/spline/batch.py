@@ -239,33 +239,46 @@ def curve_table(knots: list[np.ndarray], degrees: list[int] | np.ndarray) -> Cur
     hi = K[knot_start[:-1] + n_cp]
 
     S = span.shape[0]
-    power_basis = np.zeros((S, p + 1, p + 1))
-    window = np.empty((S, p + 1), dtype=np.intp)
-    real = np.zeros((S, p + 1), dtype=bool)
     factorials = np.array([math.factorial(k) for k in range(p + 1)], dtype=float)
     r = np.arange(p + 1)
-    for d in np.unique(degrees):  # usually a single degree
-        sel = np.flatnonzero(degrees[owner] == d)
-        d = int(d)
-        # Derivatives of the degree + 1 basis functions at each piece's start; the span is
+    if degrees.min() == p:          # the usual case: one degree, no padding
+        # Derivatives of the p + 1 basis functions at each piece's start; the span is
         # given, so the global knot array serves every curve at once.
-        _, values = basis_functions(K, d, piece_lo[sel], d, span=span[sel])   # (d+1, s, d+1)
-        power_basis[sel[:, None, None], r[None, : d + 1, None], r[None, None, : d + 1]] = (
-            values.transpose(1, 0, 2) / factorials[None, : d + 1, None])
-        first = cp_start[owner[sel]] + local_span[sel] - d
-        window[sel] = first[:, None] + np.minimum(r, d)[None, :]
-        real[sel, : d + 1] = True
+        _, values = basis_functions(K, p, piece_lo, p, span=span)             # (p+1, S, p+1)
+        power_basis = np.empty((S, p + 1, p + 1))
+        np.divide(values.transpose(1, 0, 2), factorials[None, :, None], out=power_basis)
+        window = (cp_start[owner] + local_span - p)[:, None] + r[None, :]
+        real = np.ones((S, p + 1), dtype=bool)
+    else:
+        power_basis = np.zeros((S, p + 1, p + 1))
+        window = np.empty((S, p + 1), dtype=np.intp)
+        real = np.zeros((S, p + 1), dtype=bool)
+        for d in np.unique(degrees):
+            sel = np.flatnonzero(degrees[owner] == d)
+            d = int(d)
+            _, values = basis_functions(K, d, piece_lo[sel], d, span=span[sel])   # (d+1, s, d+1)
+            power_basis[sel[:, None, None], r[None, : d + 1, None], r[None, None, : d + 1]] = (
+                values.transpose(1, 0, 2) / factorials[None, : d + 1, None])
+            first = cp_start[owner[sel]] + local_span[sel] - d
+            # padding repeats the last real row, with zero weight
+            window[sel] = first[:, None] + np.minimum(r, d)[None, :]
+            real[sel, : d + 1] = True
 
+    # every curve's breaks in order: its pieces' starts, then its end (S + C breaks)
+    C = len(knots)
     n_breaks = n_pieces + 1
-    break_curve = np.repeat(np.arange(len(knots)), n_breaks)
     last = piece_start[1:] - 1
-    breaks = np.insert(piece_lo, piece_start[1:], piece_lo[last] + width[last])
-    keys = break_curve + 1j * breaks
+    breaks = np.empty(S + C)
+    breaks[np.arange(S) + owner] = piece_lo
+    breaks[last + np.arange(1, C + 1)] = piece_lo[last] + width[last]
+    keys = np.repeat(np.arange(C), n_breaks) + 1j * breaks
     break_start = np.concatenate([[0], np.cumsum(n_breaks)])
     table = CurveTable(degree=degrees, p=p, cp_start=cp_start, piece_start=piece_start, lo=lo, hi=hi,
                        piece_lo=piece_lo, width=width, piece_curve=owner, window=window, real=real,
                        power_basis=power_basis, keys=keys, break_start=break_start)
-    table.piece_keys, table.last_piece  # noqa: B018 — computed once here rather than on first use
+    # the searches' keys, computed here once rather than on first use
+    object.__setattr__(table, "piece_keys", owner + 1j * piece_lo)
+    object.__setattr__(table, "last_piece", last)
     return table
 
 
