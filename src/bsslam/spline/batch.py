@@ -465,18 +465,31 @@ def _horner_points(c: np.ndarray, u: np.ndarray, out: np.ndarray | None = None) 
     return np.add(v * u, c[0], out=out)
 
 
-def _value_slope_curvature(c: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Points, first and second derivatives (2, m) each of pieces with coefficients
-    c (p+1, 2, m) at local u (m,): :func:`_value_and_slope` with the second derivative
-    (inner loop of closest points)."""
+def _value_slope_curvature(c: np.ndarray, u: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """Points, first and second derivatives of pieces with coefficients c (p+1, 2, m) at
+    local u (m,), written into out (3, 2, m) (rows s, s', s''): :func:`_value_and_slope`
+    with the second derivative (inner loop of closest points); the last Horner step
+    writes into ``out``."""
+    n = c.shape[0]
+    if n < 3:                                  # degree ≤ 1: no curvature
+        out[2] = 0.0
+        if n == 1:
+            out[0] = c[0]
+            out[1] = 0.0
+        else:
+            out[1] = c[1]
+            np.add(c[1] * u, c[0], out=out[0])
+        return out
     v, d, dd = c[-1], None, None
-    for i in range(c.shape[0] - 2, -1, -1):
+    for i in range(n - 2, 0, -1):
         if d is not None:
             dd = d if dd is None else dd * u + d
         d = v if d is None else d * u + v
         v = v * u + c[i]
-    zero = np.zeros_like(v)
-    return v, (zero if d is None else d), (zero if dd is None else 2.0 * dd)
+    np.multiply(d if dd is None else dd * u + d, 2.0, out=out[2])
+    np.add(d * u, v, out=out[1])
+    np.add(v * u, c[0], out=out[0])
+    return out
 
 
 def _value_and_slope(c: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -773,29 +786,38 @@ def _closest_newton(batch: CurveBatch, curve: np.ndarray, q: np.ndarray, t: np.n
     t_best = t.copy()
     d2_best = np.full(t.shape, np.inf)
     n = t.shape[0]
+    # Evaluated at the clamped t, but t itself is what is kept and stepped from, as
+    # before: a start may lie an ulp outside (then every step clamps anew).
+    tc = np.minimum(np.maximum(t, lo), hi)
+    clamp = np.count_nonzero(tc != t) > 0
+    terms = np.empty((3, 2, n))                 # s − q, s', s'' of every start
     with np.errstate(divide="ignore", invalid="ignore"):
-        for _ in range(_CLOSEST_MAX_NEWTON):
-            # evaluated at the clamped t, but t itself (a start may lie an ulp outside)
-            # is what is kept and stepped from, as before
-            tc = np.minimum(np.maximum(t, lo), hi)
+        for step in range(_CLOSEST_MAX_NEWTON):
+            if step and clamp:
+                tc = np.minimum(np.maximum(t, lo), hi)
+            elif step:
+                tc = t
             key.imag = tc
             piece = keys.searchsorted(key, side="right")
             piece -= 1
-            s, ds, dds = _value_slope_curvature(coeffs.take(piece, axis=2), tc - piece_lo.take(piece))
-            dx, dy = s - qt
-            # the sums einsum("ij,ij->i") formed, term by term (verified bit-identical)
-            d2 = dx * dx + dy * dy
+            _value_slope_curvature(coeffs.take(piece, axis=2), tc - piece_lo.take(piece), terms)
+            terms[0] -= qt
+            # (s − q)·(s − q), (s − q)·s', (s − q)·s'' and s'·s', each summed x + y as
+            # einsum("ij,ij->i") summed them (bit-identical)
+            prod = terms * terms[0]
+            d2, f, fp = prod[:, 0] + prod[:, 1]
             better = d2 < d2_best
             np.copyto(t_best, t, where=better)
             np.copyto(d2_best, d2, where=better)
-            sx, sy = ds
-            speed2 = sx * sx + sy * sy
-            f = dx * sx + dy * sy
-            fp = dx * dds[0] + dy * dds[1]
-            fp += speed2                       # the same sum as speed2 + (diff·dds)
+            speed2 = terms[1] * terms[1]
+            speed2 = speed2[0] + speed2[1]
+            fp += speed2                       # the same sum as speed2 + (s − q)·s''
             np.copyto(fp, speed2, where=~(fp > 0))
-            t_new = np.minimum(np.maximum(t - f / fp, lo), hi)
-            np.copyto(t_new, t, where=~np.isfinite(t_new))
+            t_new = np.divide(f, fp, out=f)
+            np.subtract(t, t_new, out=t_new)
+            np.maximum(t_new, lo, out=t_new)
+            np.minimum(t_new, hi, out=t_new)
+            np.copyto(t_new, t, where=np.isnan(t_new))    # clamped: NaN is the only non-finite
             done = np.abs(t_new - t) <= tolerance
             t = t_new
             if np.count_nonzero(done) == n:
