@@ -15,6 +15,12 @@ Two layers:
 * :class:`CurveBatch` — a table plus control points: the per-piece polynomial coefficients,
   one tensor contraction away from the table.
 
+Per-call cost is numpy call overhead (tens of beams, a few curves), so the searches are
+written for few numpy calls: pieces are found with one exact complex-key searchsorted,
+coefficients are gathered as (p+1, 2, m) rows, and the Newton loops update masks in place
+instead of re-gathering shrinking subsets. They do the same floating-point operations in
+the same order as before, so the results are bit-identical to the plain forms.
+
 Curves may differ in degree: the table is padded to the largest degree p with zero
 coefficients (which Horner evaluates exactly), and a padded piece's control-point window
 repeats its last real control point with zero weight.
@@ -160,7 +166,7 @@ class CurveTable:
 
     def basis_values(self, piece: np.ndarray, u: np.ndarray) -> np.ndarray:
         """(m, p+1) values of the basis functions of ``window[piece]`` at local ``u`` (m,)."""
-        return horner_with_derivatives(self.power_basis[piece], u, 0)[0]
+        return horner_with_derivatives(self.power_basis.take(piece, axis=0), u, 0)[0]
 
 
 @dataclass(frozen=True, eq=False)
@@ -171,7 +177,9 @@ class CurveBatch:
         table: the knot structure.
         control_points: (N, 2) stacked control points (m).
         coeffs: (S, p+1, 2) Taylor coefficients of each piece at its start (m / mᵏ), as
-            :class:`~bsslam.spline.pieces.PolynomialPieces` has them for one curve.
+            :class:`~bsslam.spline.pieces.PolynomialPieces` has them for one curve. From
+            :meth:`CurveTable.with_control_points` it is a transposed view of the
+            contiguous (p+1, 2, S) :attr:`coeffs_t` that the searches gather from.
     """
 
     table: CurveTable
@@ -761,9 +769,9 @@ def _sampled_minima(batch: CurveBatch, curve: np.ndarray, q: np.ndarray, sample_
     nxt[:-1] = d2[1:]
     nxt[q_end - 1] = np.inf
     # strict on the left, loose on the right: a plateau yields one start, not many
-    prev = d2 < prev
-    prev &= d2 <= nxt
-    at = prev.nonzero()[0]
+    is_min = d2 < prev
+    is_min &= d2 <= nxt
+    at = is_min.nonzero()[0]
     at_owner = owner.take(at)
     # start also from both neighbours (a corner at repeated knots is seen from one side only)
     starts = np.concatenate([np.maximum(at - 1, q_start.take(at_owner)), at,
