@@ -15,6 +15,12 @@ Two layers:
 * :class:`CurveBatch` — a table plus control points: the per-piece polynomial coefficients,
   one tensor contraction away from the table.
 
+Per-call cost is numpy call overhead (tens of beams, a few curves), so the searches are
+written for few numpy calls: pieces are found with one exact complex-key searchsorted,
+coefficients are gathered as (p+1, 2, m) rows, and the Newton loops update masks in place
+instead of re-gathering shrinking subsets. They do the same floating-point operations in
+the same order as before, so the results are bit-identical to the plain forms.
+
 Curves may differ in degree: the table is padded to the largest degree p with zero
 coefficients (which Horner evaluates exactly), and a padded piece's control-point window
 repeats its last real control point with zero weight.
@@ -28,6 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -37,8 +44,8 @@ from bsslam.spline.closest import MAX_SAMPLES_PER_SPAN
 from bsslam.spline.closest import _MAX_NEWTON as _CLOSEST_MAX_NEWTON
 from bsslam.spline.closest import _STEP_TOLERANCE as _CLOSEST_STEP_TOLERANCE
 from bsslam.spline.intersect import _MAX_NEWTON as _RAY_MAX_NEWTON
+from bsslam.spline.intersect import _MAX_REFINE as _RAY_MAX_REFINE
 from bsslam.spline.intersect import _ROOT_TOLERANCE_M, _STEP_TOLERANCE, RayHits
-from bsslam.spline.intersect import beam_frame_polynomials, nearest_crossings
 from bsslam.spline.pieces import horner_with_derivatives
 
 
@@ -85,6 +92,24 @@ class CurveTable:
     def n_curves(self) -> int:
         return self.lo.shape[0]
 
+    @cached_property
+    def piece_keys(self) -> np.ndarray:
+        """(S,) complex search keys ``curve + 1j·piece_lo`` of every piece, in order: for t
+        inside its curve's domain, ``searchsorted(piece_keys, curve + 1j·t, "right") − 1``
+        is its piece, the domain end included (no end break, so no clamp to the last piece)."""
+        return self.piece_curve + 1j * self.piece_lo
+
+    @cached_property
+    def last_piece(self) -> np.ndarray:
+        """(C,) global index of each curve's last piece."""
+        return self.piece_start[1:] - 1
+
+    def pieces_of(self, curves: np.ndarray) -> np.ndarray:
+        """Increasing global indices of the pieces of ``curves`` (any order, repeats allowed)."""
+        mark = np.zeros(self.lo.shape[0], dtype=bool)
+        mark[curves] = True
+        return mark[self.piece_curve].nonzero()[0]
+
     def with_control_points(self, control_points: np.ndarray, curves: np.ndarray | None = None) -> CurveBatch:
         """The curves with stacked control points (N, 2) (m), rows ordered as ``cp_start``.
 
@@ -96,16 +121,17 @@ class CurveTable:
         cp = np.asarray(control_points, dtype=float)
         if cp.shape != (self.cp_start[-1], 2):
             raise SplineError(f"control points must have shape ({self.cp_start[-1]}, 2), got {cp.shape}")
+        # The searches read the coefficients as (p+1, 2, S) (see CurveBatch.coeffs_t): the
+        # batch's (S, p+1, 2) coeffs are a transposed view of that array.
         if curves is None:
-            return CurveBatch(self, cp, _piece_coeffs(self.power_basis, cp[self.window]))
-        curves = np.asarray(curves, dtype=np.intp)
-        first = self.piece_start[curves]
-        count = self.piece_start[curves + 1] - first
-        owner = np.repeat(np.arange(curves.shape[0]), count)
-        piece = np.arange(owner.shape[0]) - np.repeat(np.cumsum(count) - count, count) + first[owner]
-        coeffs = np.full((self.piece_lo.shape[0], self.p + 1, 2), np.nan)
-        coeffs[piece] = _piece_coeffs(self.power_basis[piece], cp[self.window[piece]])
-        return CurveBatch(self, cp, coeffs)
+            coeffs = _piece_coeffs(self.power_basis, cp.take(self.window, axis=0))
+            coeffs_t = np.ascontiguousarray(coeffs.transpose(1, 2, 0))
+        else:
+            piece = self.pieces_of(np.asarray(curves, dtype=np.intp))
+            coeffs_t = np.full((self.p + 1, 2, self.piece_lo.shape[0]), np.nan)
+            coeffs_t[:, :, piece] = _piece_coeffs(self.power_basis.take(piece, axis=0),
+                                                  cp.take(self.window.take(piece, axis=0), axis=0)).transpose(1, 2, 0)
+        return CurveBatch(self, cp, coeffs_t.transpose(2, 0, 1))
 
     def bboxes(self, control_points: np.ndarray) -> np.ndarray:
         """(C, 4) ``xmin, ymin, xmax, ymax`` of each control polygon (m), from stacked
@@ -130,16 +156,17 @@ class CurveTable:
         """Global piece (m,), local parameter u = t − piece_lo (m,) and the clamped t (m,)
         of parameters ``t`` (m,) on curves ``curve`` (m,). As for one curve, ``t`` is
         clamped into its curve's domain and the domain end belongs to the last piece."""
-        t = np.clip(t, self.lo[curve], self.hi[curve])
-        key = curve + 1j * t
-        b = np.searchsorted(self.keys, key, side="right") - 1
-        # break b is curve c's local break b − break_start[c]; its last break (hi) starts no piece
-        piece = np.minimum(b - curve, self.piece_start[curve + 1] - 1)
-        return piece, t - self.piece_lo[piece], t
+        curve = np.asarray(curve, dtype=np.intp)
+        # np.clip's result (NaN stays NaN) at a fraction of its call overhead
+        t = np.minimum(np.maximum(t, self.lo.take(curve)), self.hi.take(curve))
+        piece = _search(self.piece_keys, curve, t)
+        # a NaN parameter sorts after every key: give it its own curve's last piece
+        np.minimum(piece, self.last_piece.take(curve), out=piece)
+        return piece, t - self.piece_lo.take(piece), t
 
     def basis_values(self, piece: np.ndarray, u: np.ndarray) -> np.ndarray:
         """(m, p+1) values of the basis functions of ``window[piece]`` at local ``u`` (m,)."""
-        return horner_with_derivatives(self.power_basis[piece], u, 0)[0]
+        return horner_with_derivatives(self.power_basis.take(piece, axis=0), u, 0)[0]
 
 
 @dataclass(frozen=True, eq=False)
@@ -150,18 +177,36 @@ class CurveBatch:
         table: the knot structure.
         control_points: (N, 2) stacked control points (m).
         coeffs: (S, p+1, 2) Taylor coefficients of each piece at its start (m / mᵏ), as
-            :class:`~bsslam.spline.pieces.PolynomialPieces` has them for one curve.
+            :class:`~bsslam.spline.pieces.PolynomialPieces` has them for one curve. From
+            :meth:`CurveTable.with_control_points` it is a transposed view of the
+            contiguous (p+1, 2, S) :attr:`coeffs_t` that the searches gather from.
     """
 
     table: CurveTable
     control_points: np.ndarray
     coeffs: np.ndarray
 
+    @cached_property
+    def coeffs_t(self) -> np.ndarray:
+        """(p+1, 2, S) the coefficients with the piece axis last, contiguous: gathering
+        pieces gives (p+1, 2, m) whose rows broadcast against (m,) parameters without
+        strided views (a copy only when ``coeffs`` is not already such a view)."""
+        return np.ascontiguousarray(self.coeffs.transpose(1, 2, 0))
+
     def evaluate(self, curve: np.ndarray, t: np.ndarray, nder: int = 0) -> np.ndarray:
         """Points and derivatives 0 … nder at parameters t (m,) (clamped) on curves (m,):
         (nder+1, m, 2)."""
-        piece, u, _ = self.table.locate(np.asarray(curve), np.asarray(t, dtype=float))
-        return horner_with_derivatives(self.coeffs[piece], u, nder)
+        if nder == 0:
+            table = self.table
+            curve = np.asarray(curve, dtype=np.intp)
+            t = np.minimum(np.maximum(np.asarray(t, dtype=float), table.lo.take(curve)), table.hi.take(curve))
+            # no NaN guard as in locate: a NaN parameter gives a NaN point on any piece
+            piece = _search(table.piece_keys, curve, t)
+            out = np.empty((1, t.shape[0], 2))
+            _horner_points(self.coeffs_t.take(piece, axis=2), t - table.piece_lo.take(piece), out=out[0].T)
+            return out
+        piece, u, _ = self.table.locate(curve, np.asarray(t, dtype=float))
+        return horner_with_derivatives(self.coeffs.take(piece, axis=0), u, nder)
 
     def bboxes(self) -> np.ndarray:
         """(C, 4) ``xmin, ymin, xmax, ymax`` of each control polygon (m); contains the curve."""
@@ -202,42 +247,68 @@ def curve_table(knots: list[np.ndarray], degrees: list[int] | np.ndarray) -> Cur
     hi = K[knot_start[:-1] + n_cp]
 
     S = span.shape[0]
-    power_basis = np.zeros((S, p + 1, p + 1))
-    window = np.empty((S, p + 1), dtype=np.intp)
-    real = np.zeros((S, p + 1), dtype=bool)
     factorials = np.array([math.factorial(k) for k in range(p + 1)], dtype=float)
     r = np.arange(p + 1)
-    for d in np.unique(degrees):  # usually a single degree
-        sel = np.flatnonzero(degrees[owner] == d)
-        d = int(d)
-        # Derivatives of the degree + 1 basis functions at each piece's start; the span is
+    if degrees.min() == p:          # the usual case: one degree, no padding
+        # Derivatives of the p + 1 basis functions at each piece's start; the span is
         # given, so the global knot array serves every curve at once.
-        _, values = basis_functions(K, d, piece_lo[sel], d, span=span[sel])   # (d+1, s, d+1)
-        power_basis[sel[:, None, None], r[None, : d + 1, None], r[None, None, : d + 1]] = (
-            values.transpose(1, 0, 2) / factorials[None, : d + 1, None])
-        first = cp_start[owner[sel]] + local_span[sel] - d
-        window[sel] = first[:, None] + np.minimum(r, d)[None, :]
-        real[sel, : d + 1] = True
+        _, values = basis_functions(K, p, piece_lo, p, span=span)             # (p+1, S, p+1)
+        power_basis = np.empty((S, p + 1, p + 1))
+        np.divide(values.transpose(1, 0, 2), factorials[None, :, None], out=power_basis)
+        window = (cp_start[owner] + local_span - p)[:, None] + r[None, :]
+        real = np.ones((S, p + 1), dtype=bool)
+    else:
+        power_basis = np.zeros((S, p + 1, p + 1))
+        window = np.empty((S, p + 1), dtype=np.intp)
+        real = np.zeros((S, p + 1), dtype=bool)
+        for d in np.unique(degrees):
+            sel = np.flatnonzero(degrees[owner] == d)
+            d = int(d)
+            _, values = basis_functions(K, d, piece_lo[sel], d, span=span[sel])   # (d+1, s, d+1)
+            power_basis[sel[:, None, None], r[None, : d + 1, None], r[None, None, : d + 1]] = (
+                values.transpose(1, 0, 2) / factorials[None, : d + 1, None])
+            first = cp_start[owner[sel]] + local_span[sel] - d
+            # padding repeats the last real row, with zero weight
+            window[sel] = first[:, None] + np.minimum(r, d)[None, :]
+            real[sel, : d + 1] = True
 
+    # every curve's breaks in order: its pieces' starts, then its end (S + C breaks)
+    C = len(knots)
     n_breaks = n_pieces + 1
-    break_curve = np.repeat(np.arange(len(knots)), n_breaks)
     last = piece_start[1:] - 1
-    breaks = np.insert(piece_lo, piece_start[1:], piece_lo[last] + width[last])
-    keys = break_curve + 1j * breaks
+    breaks = np.empty(S + C)
+    breaks[np.arange(S) + owner] = piece_lo
+    breaks[last + np.arange(1, C + 1)] = piece_lo[last] + width[last]
+    keys = np.repeat(np.arange(C), n_breaks) + 1j * breaks
     break_start = np.concatenate([[0], np.cumsum(n_breaks)])
-    return CurveTable(degree=degrees, p=p, cp_start=cp_start, piece_start=piece_start, lo=lo, hi=hi,
-                      piece_lo=piece_lo, width=width, piece_curve=owner, window=window, real=real,
-                      power_basis=power_basis, keys=keys, break_start=break_start)
+    table = CurveTable(degree=degrees, p=p, cp_start=cp_start, piece_start=piece_start, lo=lo, hi=hi,
+                       piece_lo=piece_lo, width=width, piece_curve=owner, window=window, real=real,
+                       power_basis=power_basis, keys=keys, break_start=break_start)
+    # the searches' keys, computed here once rather than on first use
+    object.__setattr__(table, "piece_keys", owner + 1j * piece_lo)
+    object.__setattr__(table, "last_piece", last)
+    return table
 
 
 def _piece_coeffs(power_basis: np.ndarray, window_points: np.ndarray) -> np.ndarray:
     """(S, p+1, 2) Taylor coefficients Σ_r power_basis[s, k, r] · window_points[s, r] of
     pieces from their (S, p+1, p+1) power-basis matrices and (S, p+1, 2) control points.
-    (Written out: numpy's einsum and batched matmul are slow on many 4 × 4 products.)"""
-    out = power_basis[:, :, 0, None] * window_points[:, None, 0, :]
-    for r in range(1, power_basis.shape[2]):
-        out += power_basis[:, :, r, None] * window_points[:, None, r, :]
-    return out
+    (One broadcast product and a sum over r, which numpy adds in order r = 0, 1, … as the
+    written-out loop did: numpy's einsum and batched matmul are slow on many 4 × 4
+    products, and round differently.)"""
+    return (power_basis[:, :, :, None] * window_points[:, None, :, :]).sum(axis=2)
+
+
+def _search(keys: np.ndarray, curve: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(m,) global piece of parameters t (m,), each inside the domain of its curve (m,):
+    one exact lexicographic search of the complex keys ``curve + 1j·t`` among
+    :attr:`CurveTable.piece_keys`."""
+    key = np.empty(t.shape, dtype=complex)
+    key.real = curve
+    key.imag = t
+    piece = keys.searchsorted(key, side="right")
+    piece -= 1
+    return piece
 
 
 # -- ray intersection ------------------------------------------------------------------------
@@ -263,143 +334,323 @@ def intersect_rays_batch(batch: CurveBatch, curve: np.ndarray, origins: np.ndarr
     curve = np.asarray(curve, dtype=np.intp)
     mu = np.asarray(angles, dtype=float)
     m = mu.shape[0]
-    origin = np.broadcast_to(np.asarray(origins, dtype=float), (m, 2))
+    origin = np.asarray(origins, dtype=float)
+    # one origin for all rays (the filter's case) stays a (2, 1) column
+    origin = origin[:, None] if origin.shape == (2,) else np.broadcast_to(origin, (m, 2)).T
     if curve.shape != (m,):
         raise SplineError(f"curve must have shape ({m},), got {curve.shape}")
     if samples_per_span < 2:
         raise SplineError(f"samples_per_span must be ≥ 2, got {samples_per_span}")
-    rays = _Rays(curve, origin[:, 0], origin[:, 1], np.cos(mu), np.sin(mu))
-    t = np.full(m, np.nan)
-    rng = np.full(m, np.nan)
-    slope_x = np.full(m, np.nan)
-    slope_y = np.full(m, np.nan)
-    todo = np.ones(m, dtype=bool)
-    if t0 is not None:
-        guess = np.asarray(t0, dtype=float)
-        if guess.shape != (m,):
-            raise SplineError(f"t0 must have shape ({m},), got {guess.shape}")
-        idx = np.flatnonzero(np.isfinite(guess))
-        ok, values = _ray_newton(batch, rays.take(idx), guess[idx], max_range)
-        done = idx[ok]
-        t[done], rng[done], slope_x[done], slope_y[done] = (v[ok] for v in values)
-        todo[done] = False
-    idx = np.flatnonzero(todo)
-    if idx.size:
-        ok, values = _ray_global_search(batch, rays.take(idx), max_range, samples_per_span)
-        done = idx[ok]
-        t[done], rng[done], slope_x[done], slope_y[done] = (v[ok] for v in values)
-    hit = np.isfinite(rng)
+    rays = _Rays(curve, origin, np.cos(mu), np.sin(mu))
     with np.errstate(divide="ignore", invalid="ignore"):
+        if t0 is None:
+            out = np.full((4, m), np.nan)      # rows t, range, x̃', ỹ'; NaN where no hit
+            todo = np.arange(m)
+        else:
+            guess = np.asarray(t0, dtype=float)
+            if guess.shape != (m,):
+                raise SplineError(f"t0 must have shape ({m},), got {guess.shape}")
+            finite = np.isfinite(guess)
+            if np.count_nonzero(finite) == m:  # the filter's case: every beam has a guess
+                ok, out = _ray_newton(batch, rays, guess, max_range)
+                missed = ~ok
+                np.copyto(out, np.nan, where=missed)
+                todo = missed.nonzero()[0]
+            else:
+                out = np.full((4, m), np.nan)
+                idx = finite.nonzero()[0]
+                ok, values = _ray_newton(batch, rays.take(idx), guess[idx], max_range)
+                out[:, idx[ok]] = values[:, ok]
+                left = np.ones(m, dtype=bool)
+                left[idx[ok]] = False
+                todo = left.nonzero()[0]
+        if todo.size:
+            ok, values = _ray_global_search(batch, rays.take(todo), max_range, samples_per_span)
+            out[:, todo[ok]] = values[:, ok]
+        t, rng, slope_x, slope_y = out
         r = slope_x / slope_y
-    return RayHits(t=t, range=rng, r=r, hit=hit)
+    return RayHits(t=t, range=rng, r=r, hit=np.isfinite(rng))
 
 
 @dataclass(frozen=True)
 class _Rays:
-    """Curve index, origin and direction cosines of k rays, each (k,)."""
+    """Curve index (k,), origins (2, k) or one shared origin (2, 1) (m), direction
+    cosines cos, sin (k,) of k rays."""
 
     curve: np.ndarray
-    ox: np.ndarray
-    oy: np.ndarray
+    origin: np.ndarray
     cos: np.ndarray
     sin: np.ndarray
 
     def take(self, index: np.ndarray) -> _Rays:
-        return _Rays(self.curve[index], self.ox[index], self.oy[index], self.cos[index], self.sin[index])
+        origin = self.origin if self.origin.shape[1] == 1 else self.origin[:, index]
+        return _Rays(self.curve[index], origin, self.cos[index], self.sin[index])
+
+    def origin_of(self, index: np.ndarray) -> np.ndarray:
+        """(2, len(index)) or the shared (2, 1) origin of rays ``index``."""
+        return self.origin if self.origin.shape[1] == 1 else self.origin[:, index]
 
 
-def _ray_newton(batch: CurveBatch, rays: _Rays, t: np.ndarray, max_range: float):
+def _ray_newton(batch: CurveBatch, rays: _Rays, t: np.ndarray, max_range: float
+                ) -> tuple[np.ndarray, np.ndarray]:
     """Newton ``t ← t − ỹ/ỹ'`` from the guesses, clamped to each curve's domain (as for one
-    curve). Returns ok (k,) and (t, x̃, x̃', ỹ') (k,) each."""
+    curve). Returns ok (k,) and the rows t, x̃, x̃', ỹ' (4, k).
+
+    A ray stops (keeps its t) at the first step that does not move it, as when only the
+    moving rays are iterated; all rays are evaluated every step, though: with tens of rays
+    the cost is the number of numpy calls, not their length, and gathering the moving
+    subset each step costs more calls than it saves.
+    """
     table = batch.table
-    lo, hi = table.lo[rays.curve], table.hi[rays.curve]
-    t = np.clip(t, lo, hi)
-    active = np.arange(t.shape[0])
-    sub = rays
-    sub_lo, sub_hi = lo, hi
-    for _ in range(_RAY_MAX_NEWTON):
-        # only rays still moving are evaluated: most converge in three or four steps
-        t_a = t[active]
-        piece, u, _ = table.locate(sub.curve, t_a)
-        s, ds = _value_and_slope(batch.coeffs[piece], u)
-        yt = sub.cos * (s[:, 1] - sub.oy) - sub.sin * (s[:, 0] - sub.ox)
-        dyt = sub.cos * ds[:, 1] - sub.sin * ds[:, 0]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t_new = np.clip(t_a - yt / dyt, sub_lo, sub_hi)
-        finite = np.isfinite(t_new)
-        moving = finite & (np.abs(t_new - t_a) > _STEP_TOLERANCE * (1.0 + np.abs(t_new)))
-        t[active] = np.where(finite, t_new, t_a)
-        if not moving.any():
-            break
-        if not moving.all():
-            keep = np.flatnonzero(moving)
-            active = active[keep]
-            sub = sub.take(keep)
-            sub_lo, sub_hi = sub_lo[keep], sub_hi[keep]
-    piece, u, _ = table.locate(rays.curve, t)
-    s, ds = _value_and_slope(batch.coeffs[piece], u)
-    dx, dy = s[:, 0] - rays.ox, s[:, 1] - rays.oy
-    xt = rays.cos * dx + rays.sin * dy
-    yt = rays.cos * dy - rays.sin * dx
-    dxt = rays.cos * ds[:, 0] + rays.sin * ds[:, 1]
-    dyt = rays.cos * ds[:, 1] - rays.sin * ds[:, 0]
+    curve, cos, sin, origin = rays.curve, rays.cos, rays.sin, rays.origin
+    k = t.shape[0]
+    # ỹ = cos·dy − sin·dx is summed as (−sin)·dx + cos·dy: the same rounding (negation is
+    # exact, addition commutes), in one product with the rows (−sin, cos)
+    across = np.empty((2, k))
+    np.negative(sin, out=across[0])
+    across[1] = cos
+    lo, hi = table.lo.take(curve), table.hi.take(curve)
+    t = np.minimum(np.maximum(t, lo), hi)      # np.clip, cheaper
+    keys, piece_lo, coeffs = table.piece_keys, table.piece_lo, batch.coeffs_t
+    key = curve.astype(complex)
+    moving = np.ones(k, dtype=bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for _ in range(_RAY_MAX_NEWTON):
+            key.imag = t                       # t stays inside the domain: no clamp
+            piece = keys.searchsorted(key, side="right")
+            piece -= 1
+            s, ds = _value_and_slope(coeffs.take(piece, axis=2), t - piece_lo.take(piece))
+            s -= origin
+            s *= across
+            ds *= across
+            yt = s[1] + s[0]
+            yt /= ds[1] + ds[0]
+            t_new = np.subtract(t, yt, out=yt)
+            np.maximum(t_new, lo, out=t_new)
+            np.minimum(t_new, hi, out=t_new)
+            finite = np.isfinite(t_new)
+            step = np.subtract(t_new, t)
+            np.abs(step, out=step)
+            threshold = np.abs(t_new)
+            threshold += 1.0
+            threshold *= _STEP_TOLERANCE
+            finite &= moving                   # stopped rays keep their t
+            np.copyto(t, t_new, where=finite)
+            moving &= finite
+            moving &= step > threshold
+            if not np.count_nonzero(moving):
+                break
+        key.imag = t
+        piece = keys.searchsorted(key, side="right")
+        piece -= 1
+        s, ds = _value_and_slope(coeffs.take(piece, axis=2), t - piece_lo.take(piece))
+    s -= origin
+    along = np.stack([cos, sin])
+    values = np.empty((4, k))
+    values[0] = t
+    xt, yt = s * along, s * across
+    xt = np.add(xt[0], xt[1], out=values[1])
+    yt = yt[1] + yt[0]
+    slope_x, slope_y = ds * along, ds * across
+    np.add(slope_x[0], slope_x[1], out=values[2])
+    np.add(slope_y[1], slope_y[0], out=values[3])
     ok = (np.abs(yt) <= _ROOT_TOLERANCE_M) & (xt > 0) & (xt <= max_range)
-    return ok, (t, xt, dxt, dyt)
+    return ok, values
 
 
-def _value_slope_curvature(coeffs: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Points, first and second derivatives (m, 2) each of pieces (m, p+1, 2) at local u
-    (m,): :func:`_value_and_slope` with the second derivative (inner loop of closest points)."""
-    uu = u[:, None]
-    v, d, dd = coeffs[:, -1], None, None
-    for i in range(coeffs.shape[1] - 2, -1, -1):
+def _horner_points(c: np.ndarray, u: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """(2, m) points of pieces with coefficients c (p+1, 2, m) at local u (m,): Horner,
+    the same operations as horner_with_derivatives with nder = 0."""
+    v = c[-1]
+    if c.shape[0] == 1:
+        if out is None:
+            return v.copy()
+        np.copyto(out, v)
+        return out
+    for i in range(c.shape[0] - 2, 0, -1):
+        v = v * u
+        v += c[i]
+    return np.add(v * u, c[0], out=out)
+
+
+def _value_slope_curvature(c: np.ndarray, u: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """Points, first and second derivatives of pieces with coefficients c (p+1, 2, m) at
+    local u (m,), written into out (3, 2, m) (rows s, s', s''): :func:`_value_and_slope`
+    with the second derivative (inner loop of closest points); the last Horner step
+    writes into ``out``."""
+    n = c.shape[0]
+    if n < 3:                                  # degree ≤ 1: no curvature
+        out[2] = 0.0
+        if n == 1:
+            out[0] = c[0]
+            out[1] = 0.0
+        else:
+            out[1] = c[1]
+            np.add(c[1] * u, c[0], out=out[0])
+        return out
+    v, d, dd = c[-1], None, None
+    for i in range(n - 2, 0, -1):
         if d is not None:
-            dd = d if dd is None else dd * uu + d
-        d = v if d is None else d * uu + v
-        v = v * uu + coeffs[:, i]
-    zero = np.zeros_like(v)
-    return v, (zero if d is None else d), (zero if dd is None else 2.0 * dd)
+            dd = d if dd is None else dd * u + d
+        d = v if d is None else d * u + v
+        v = v * u + c[i]
+    np.multiply(d if dd is None else dd * u + d, 2.0, out=out[2])
+    np.add(d * u, v, out=out[1])
+    np.add(v * u, c[0], out=out[0])
+    return out
 
 
-def _value_and_slope(coeffs: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Points (m, 2) and first derivatives (m, 2) of pieces with coefficients (m, p+1, 2)
+def _value_and_slope(c: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points (2, m) and first derivatives (2, m) of pieces with coefficients c (p+1, 2, m)
     at local parameters u (m,): Horner on both at once (as horner_with_derivatives with
     nder = 1, with fewer temporaries — this is the inner loop of the ray search)."""
-    uu = u[:, None]
-    v, d = coeffs[:, -1], None
-    for i in range(coeffs.shape[1] - 2, -1, -1):
-        d = v if d is None else d * uu + v
-        v = v * uu + coeffs[:, i]
+    v, d = c[-1], None
+    for i in range(c.shape[0] - 2, -1, -1):
+        d = v if d is None else d * u + v
+        v = v * u + c[i]
     return v, (np.zeros_like(v) if d is None else d)
 
 
 def _ray_global_search(batch: CurveBatch, rays: _Rays, max_range: float, samples_per_span: int):
     """The global search of one curve's ``intersect_rays`` over (ray, piece of its curve)
-    pairs: convex-hull culling, sampling, bracketed Newton, nearest root per ray."""
+    pairs: convex-hull culling, sampling, bracketed Newton, nearest root per ray.
+    Returns ok (k,) and the rows t, range, x̃', ỹ' (4, k), NaN where no hit.
+
+    The steps and the arithmetic of :func:`~bsslam.spline.intersect.nearest_crossings`
+    (results bit-identical), on polynomials laid out (p+1, K) so that every Horner row is
+    a contiguous (K,) array, with plain ufuncs instead of np.where / broadcast copies."""
     table = batch.table
     k = rays.curve.shape[0]
-    first = table.piece_start[rays.curve]
-    count = table.piece_start[rays.curve + 1] - first
+    # (ray, piece of its curve) pairs, ray by ray: rays sharing a curve repeat its pieces
+    first = table.piece_start.take(rays.curve)
+    count = table.piece_start.take(rays.curve + 1) - first
     ray = np.repeat(np.arange(k), count)
-    piece = np.arange(ray.shape[0]) - np.repeat(np.cumsum(count) - count, count) + first[ray]
+    piece = np.arange(ray.shape[0]) - np.repeat(np.cumsum(count) - count, count) + first.take(ray)
     # Convex hull: rotated control points of each candidate piece, (K, p+1).
-    cp = batch.control_points[table.window[piece]]
-    c, s = rays.cos[ray, None], rays.sin[ray, None]
-    dx, dy = cp[:, :, 0] - rays.ox[ray, None], cp[:, :, 1] - rays.oy[ray, None]
+    cp = batch.control_points.take(table.window.take(piece, axis=0), axis=0)
+    c, s = rays.cos.take(ray)[:, None], rays.sin.take(ray)[:, None]
+    ox, oy = rays.origin_of(ray)
+    dx, dy = cp[:, :, 0] - ox[:, None], cp[:, :, 1] - oy[:, None]
     xw, yw = c * dx + s * dy, c * dy - s * dx
-    straddles = (yw.min(axis=1) <= 0) & (yw.max(axis=1) >= 0)
-    reachable = (xw.max(axis=1) > 0) & (xw.min(axis=1) <= max_range)
-    keep = straddles & reachable
-    ray, piece = ray[keep], piece[keep]
+    keep = yw.min(axis=1) <= 0
+    keep &= yw.max(axis=1) >= 0
+    keep &= xw.max(axis=1) > 0
+    keep &= xw.min(axis=1) <= max_range
+    keep = keep.nonzero()[0]
+    ray, piece = ray.take(keep), piece.take(keep)
+    out = np.full((4, k), np.nan)
+    ok = np.zeros(k, dtype=bool)
+    if ray.size == 0:
+        return ok, out
 
-    cx, cy = beam_frame_polynomials(batch.coeffs[piece], rays.cos[ray], rays.sin[ray], rays.ox[ray], rays.oy[ray])
+    # beam-frame polynomials (p+1, K), as beam_frame_polynomials forms them
+    cos, sin = rays.cos.take(ray), rays.sin.take(ray)
+    ox, oy = rays.origin_of(ray)
+    coeffs = batch.coeffs_t.take(piece, axis=2)                     # (p+1, 2, K)
+    cx = cos * coeffs[:, 0] + sin * coeffs[:, 1]
+    cy = cos * coeffs[:, 1] - sin * coeffs[:, 0]
+    cx[0] -= cos * ox + sin * oy
+    cy[0] -= cos * oy - sin * ox
 
-    ok, hit_rays, best_pair, values = nearest_crossings(cx, cy, table.width[piece], ray, k,
-                                                        samples_per_span, max_range)
-    t, rng, dxt, dyt = (np.full(k, np.nan) for _ in range(4))
-    t[hit_rays] = table.piece_lo[piece[best_pair]] + values[0]
-    rng[hit_rays], dxt[hit_rays], dyt[hit_rays] = values[1:]
-    return ok, (t, rng, dxt, dyt)
+    # sign changes of ỹ between samples (and exact zeros)
+    u = table.width.take(piece)[:, None] * _unit_grid(samples_per_span)   # (K, samples+1)
+    y = _horner_rows(cy[:, :, None], u)
+    positive = y > 0
+    pair, j = (positive[:, :-1] != positive[:, 1:]).nonzero()
+    zero_pair, zero_j = (y == 0).nonzero()
+    if zero_pair.size:
+        pair = np.concatenate([pair, zero_pair])
+        a = np.concatenate([u[pair[: j.size], j], u[zero_pair, zero_j]])
+        b = np.concatenate([u[pair[: j.size], j + 1], u[zero_pair, zero_j]])
+    else:
+        a, b = u[pair, j], u[pair, j + 1]
+    cy_pairs = cy.take(pair, axis=1)
+    root = _refine_brackets_rows(cy_pairs, a, b)
+
+    cx_pairs = cx.take(pair, axis=1)
+    xt = _horner_rows(cx_pairs, root)
+    keep = xt > 0
+    keep &= xt <= max_range
+    keep = keep.nonzero()[0]
+    pair, root, xt = pair.take(keep), root.take(keep), xt.take(keep)
+    if pair.size == 0:
+        return ok, out
+    owner = ray.take(pair)
+    # Nearest root of every ray: sort by (ray, range) and keep each ray's first.
+    order = np.lexsort((xt, owner))
+    sorted_owner = owner.take(order)
+    first = np.empty(order.shape, dtype=bool)
+    first[0] = True
+    np.not_equal(sorted_owner[1:], sorted_owner[:-1], out=first[1:])
+    best = order[first]
+    hit_rays = owner.take(best)
+    ok[hit_rays] = True
+    best_pair = pair.take(best)
+    root = root.take(best)
+    powers = np.arange(1, cx.shape[0], dtype=float)[:, None]
+    out[0, hit_rays] = table.piece_lo.take(piece.take(best_pair)) + root
+    out[1, hit_rays] = xt.take(best)
+    out[2, hit_rays] = _horner_rows(cx.take(best_pair, axis=1)[1:] * powers, root)
+    out[3, hit_rays] = _horner_rows(cy.take(best_pair, axis=1)[1:] * powers, root)
+    return ok, out
+
+
+_UNIT_GRIDS: dict[int, np.ndarray] = {}
+
+
+def _unit_grid(samples: int) -> np.ndarray:
+    """np.linspace(0, 1, samples + 1), computed once per count."""
+    grid = _UNIT_GRIDS.get(samples)
+    if grid is None:
+        grid = _UNIT_GRIDS[samples] = np.linspace(0.0, 1.0, samples + 1)
+    return grid
+
+
+def _horner_rows(c: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Polynomials c (p+1, B, ...) in ascending powers at x (B, ...) -> (B, ...): the
+    operations of intersect._horner (from the top coefficient: multiply, add)."""
+    if c.shape[0] == 1:
+        return np.broadcast_to(c[0], np.broadcast_shapes(c.shape[1:], x.shape)).copy()
+    v = c[-1] * x
+    v += c[-2]
+    for i in range(c.shape[0] - 3, -1, -1):
+        v *= x
+        v += c[i]
+    return v
+
+
+def _refine_brackets_rows(c: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """A root of each polynomial c (p+1, B) inside its bracket [a, b] (sign change):
+    :func:`bsslam.spline.intersect._refine_brackets` step for step (Newton from the
+    midpoint, bisection when a step leaves the bracket, every pair iterated until all
+    have converged), with in-place updates instead of np.where."""
+    fa_positive = _horner_rows(c, a) > 0
+    x = 0.5 * (a + b)
+    a, b = a.copy(), b.copy()
+    derivative = c[1:] * np.arange(1, c.shape[0], dtype=float)[:, None]
+    n = x.shape[0]
+    for _ in range(_RAY_MAX_REFINE):
+        f = _horner_rows(c, x)
+        fp = _horner_rows(derivative, x)
+        same = (f > 0) == fa_positive
+        np.copyto(a, x, where=same)
+        np.copyto(b, x, where=~same)
+        step = f / fp
+        x_new = x - step                       # Newton, kept where it stays inside (a, b)
+        outside = ~((x_new > a) & (x_new < b))
+        np.copyto(x_new, 0.5 * (a + b), where=outside)
+        # converged to rounding: stay (a bisection step from a root would leave it)
+        tolerance = np.abs(x)
+        tolerance += 1.0
+        tolerance *= _STEP_TOLERANCE
+        at_root = np.abs(step) <= tolerance
+        at_root |= f == 0
+        np.copyto(x_new, x, where=at_root)
+        at_root |= x_new == x
+        x = x_new
+        if np.count_nonzero(at_root) == n:
+            break
+    return x
 
 
 # -- closest points --------------------------------------------------------------------------
@@ -430,22 +681,40 @@ def closest_points_batch(batch: CurveBatch, curve: np.ndarray, queries: np.ndarr
         raise SplineError(f"samples_per_span must be ≥ 2, got {samples_per_span}")
     if not sample_step_m > 0:
         raise SplineError(f"sample_step_m must be > 0, got {sample_step_m}")
-    guess = np.full(q.shape[0], np.nan) if t0 is None else np.asarray(t0, dtype=float)
-    given = np.flatnonzero(np.isfinite(guess))
-    unguessed = np.flatnonzero(~np.isfinite(guess))
-    t_start = np.clip(guess[given], table.lo[curve[given]], table.hi[curve[given]])
-    owner = given
-    if unguessed.size:
-        t_s, owner_s = _sampled_minima(batch, curve[unguessed], q[unguessed], sample_step_m, samples_per_span)
-        t_start = np.concatenate([t_start, t_s])
-        owner = np.concatenate([owner, unguessed[owner_s]])
-    t, d2 = _closest_newton(batch, curve[owner], q[owner], t_start)
+    if t0 is None:                          # the filter's case
+        t_start, owner = _sampled_minima(batch, curve, q, sample_step_m, samples_per_span)
+    else:
+        guess = np.asarray(t0, dtype=float)
+        given = np.flatnonzero(np.isfinite(guess))
+        unguessed = np.flatnonzero(~np.isfinite(guess))
+        t_start = np.clip(guess[given], table.lo[curve[given]], table.hi[curve[given]])
+        owner = given
+        if unguessed.size:
+            t_s, owner_s = _sampled_minima(batch, curve[unguessed], q[unguessed], sample_step_m,
+                                           samples_per_span)
+            t_start = np.concatenate([t_start, t_s])
+            owner = np.concatenate([owner, unguessed[owner_s]])
+    t, d2 = _closest_newton(batch, curve.take(owner), q.take(owner, axis=0), t_start)
+    # each query's best start: the first of its group after sorting by (query, d2); the
+    # sort is stable, so ties go to the earlier start
     order = np.lexsort((d2, owner))
-    _, first = np.unique(owner[order], return_index=True)
+    sorted_owner = owner.take(order)
+    first = np.empty(order.shape, dtype=bool)
+    first[0] = True
+    np.not_equal(sorted_owner[1:], sorted_owner[:-1], out=first[1:])
     best = order[first]
-    t_best = t[best]
-    points = batch.evaluate(curve, t_best)[0]
-    return t_best, points, np.sqrt(d2[best])
+    t_best = t.take(best)
+    points = np.ascontiguousarray(_evaluate_points(batch, curve, t_best).T)
+    return t_best, points, np.sqrt(d2.take(best))
+
+
+def _evaluate_points(batch: CurveBatch, curve: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(2, m) points at finite parameters t (m,) on curves (m,) (clamped): the transpose
+    of ``batch.evaluate(curve, t)[0]``, with fewer numpy calls."""
+    table = batch.table
+    t = np.minimum(np.maximum(t, table.lo.take(curve)), table.hi.take(curve))
+    piece = _search(table.piece_keys, curve, t)
+    return _horner_points(batch.coeffs_t.take(piece, axis=2), t - table.piece_lo.take(piece))
 
 
 def _sampled_minima(batch: CurveBatch, curve: np.ndarray, q: np.ndarray, sample_step_m: float,
@@ -454,74 +723,116 @@ def _sampled_minima(batch: CurveBatch, curve: np.ndarray, q: np.ndarray, sample_
     each query's curve sampled as one curve's ``closest_point`` samples it, and their
     neighbours."""
     table = batch.table
-    used, inverse = np.unique(curve, return_inverse=True)
-    # pieces of the used curves, curve by curve
-    first = table.piece_start[used]
-    n_pieces = table.piece_start[used + 1] - first
-    piece = np.arange(n_pieces.sum()) - np.repeat(np.cumsum(n_pieces) - n_pieces, n_pieces) + np.repeat(first, n_pieces)
-    window = batch.control_points[table.window[piece]]          # padding repeats: adds no length
-    polygon = np.sum(np.linalg.norm(np.diff(window, axis=1), axis=2), axis=1)
-    counts = np.clip(np.ceil(polygon / sample_step_m), samples_per_span, MAX_SAMPLES_PER_SPAN).astype(np.intp)
-    # Grid of each used curve: every piece cut in equal parts, then the curve's end.
-    piece_of = np.repeat(piece, counts)
-    part = np.arange(piece_of.shape[0]) - np.repeat(np.cumsum(counts) - counts, counts)
-    t_in = table.piece_lo[piece_of] + table.width[piece_of] * (part / np.repeat(counts, counts))
-    per_curve = np.add.reduceat(counts, np.cumsum(n_pieces) - n_pieces)   # samples before the end
-    ends = np.cumsum(per_curve)
-    t_grid = np.insert(t_in, ends, table.hi[used])
-    grid_curve = np.repeat(used, per_curve + 1)
-    samples = batch.evaluate(grid_curve, t_grid)[0]
-    grid_start = np.concatenate([[0], np.cumsum(per_curve + 1)])
+    mark = np.zeros(table.lo.shape[0], dtype=bool)
+    mark[curve] = True
+    used = mark.nonzero()[0]
+    piece = mark[table.piece_curve].nonzero()[0]        # pieces of the used curves, in order
+    window = batch.control_points.take(table.window.take(piece, axis=0), axis=0)
+    # control polygon length of each piece (padding repeats a point: adds no length);
+    # the expression and summation order of np.linalg.norm and np.sum
+    side = window[:, 1:] - window[:, :-1]
+    side *= side
+    polygon = np.sqrt(side[:, :, 0] + side[:, :, 1]).sum(axis=1)
+    counts = np.ceil(polygon / sample_step_m)
+    np.maximum(counts, samples_per_span, out=counts)
+    np.minimum(counts, MAX_SAMPLES_PER_SPAN, out=counts)
+    counts = counts.astype(np.intp)
+    # Grid of each used curve: every piece cut in equal parts, then the curve's end (one
+    # more sample on its last piece, set to hi below).
+    last = table.piece_start.take(used + 1) - 1
+    is_last = np.zeros(table.piece_lo.shape[0], dtype=np.intp)
+    is_last[last] = 1
+    extended = counts + is_last.take(piece)
+    piece_of = np.repeat(piece, extended)
+    n_grid = piece_of.shape[0]
+    block_end = np.cumsum(extended)
+    part = np.arange(n_grid) - np.repeat(block_end - extended, extended)
+    t_grid = table.piece_lo.take(piece_of) + table.width.take(piece_of) * (part / np.repeat(counts, extended))
+    grid_end = block_end[is_last.take(piece).nonzero()[0]]          # (U,) end of each used curve's grid
+    t_grid[grid_end - 1] = table.hi.take(used)
+    grid_curve = table.piece_curve.take(piece_of)
+    samples = _evaluate_points(batch, grid_curve, t_grid)          # (2, G)
     # distances of each query to its curve's samples, flattened query by query
-    g0 = grid_start[inverse]
-    size = grid_start[inverse + 1] - g0
+    inverse = np.cumsum(mark).take(curve) - 1
+    g1 = grid_end.take(inverse)
+    size = g1 - np.concatenate([[0], grid_end[:-1]]).take(inverse)
+    q_end = np.cumsum(size)
+    q_start = q_end - size
     owner = np.repeat(np.arange(q.shape[0]), size)
-    local = np.arange(owner.shape[0]) - np.repeat(np.cumsum(size) - size, size)
-    index = g0[owner] + local
-    diff = q[owner] - samples[index]
-    d2 = np.einsum("ij,ij->i", diff, diff)
-    prev = np.where(local > 0, np.roll(d2, 1), np.inf)
-    nxt = np.where(local < size[owner] - 1, np.roll(d2, -1), np.inf)
+    index = np.arange(owner.shape[0]) + np.repeat(g1 - q_end, size)  # sample of each entry
+    diff = q.T.take(owner, axis=1) - samples.take(index, axis=1)
+    d2 = diff[0] * diff[0] + diff[1] * diff[1]
+    prev = np.empty_like(d2)
+    prev[1:] = d2[:-1]
+    prev[q_start] = np.inf
+    nxt = np.empty_like(d2)
+    nxt[:-1] = d2[1:]
+    nxt[q_end - 1] = np.inf
     # strict on the left, loose on the right: a plateau yields one start, not many
-    is_min = (d2 < prev) & (d2 <= nxt)
-    at = np.flatnonzero(is_min)
-    lo_i, hi_i = g0[owner[at]], g0[owner[at]] + size[owner[at]] - 1
+    is_min = d2 < prev
+    is_min &= d2 <= nxt
+    at = is_min.nonzero()[0]
+    at_owner = owner.take(at)
     # start also from both neighbours (a corner at repeated knots is seen from one side only)
-    starts = np.concatenate([np.clip(index[at] + d, lo_i, hi_i) for d in (-1, 0, 1)])
-    return t_grid[starts], np.tile(owner[at], 3)
+    starts = np.concatenate([np.maximum(at - 1, q_start.take(at_owner)), at,
+                             np.minimum(at + 1, q_end.take(at_owner) - 1)])
+    return t_grid.take(index.take(starts)), np.concatenate([at_owner, at_owner, at_owner])
 
 
 def _closest_newton(batch: CurveBatch, curve: np.ndarray, q: np.ndarray, t: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Clamped, downhill-safeguarded Newton on f(t) = (s(t) − q)·s'(t) for (K,) starts on
-    their curves; the best parameter seen per start and its squared distance."""
+    their curves; the best parameter seen per start and its squared distance.
+
+    Every start is iterated until all have converged (as before: results depend on it)."""
     table = batch.table
-    lo, hi = table.lo[curve], table.hi[curve]
+    lo, hi = table.lo.take(curve), table.hi.take(curve)
     tolerance = _CLOSEST_STEP_TOLERANCE * np.maximum(hi - lo, np.maximum(np.abs(lo), np.abs(hi)))
+    keys, piece_lo, coeffs = table.piece_keys, table.piece_lo, batch.coeffs_t
+    key = curve.astype(complex)
+    qt = np.ascontiguousarray(q.T)
     t_best = t.copy()
     d2_best = np.full(t.shape, np.inf)
-    for _ in range(_CLOSEST_MAX_NEWTON):
-        piece, u, _ = table.locate(curve, t)
-        s, ds, dds = _value_slope_curvature(batch.coeffs[piece], u)
-        diff = s - q
-        d2 = np.einsum("ij,ij->i", diff, diff)
-        better = d2 < d2_best
-        t_best[better] = t[better]
-        d2_best[better] = d2[better]
-        speed2 = np.einsum("ij,ij->i", ds, ds)
-        f = np.einsum("ij,ij->i", diff, ds)
-        fp = speed2 + np.einsum("ij,ij->i", diff, dds)
-        fp = np.where(fp > 0, fp, speed2)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t_new = np.clip(t - f / fp, lo, hi)
-        t_new = np.where(np.isfinite(t_new), t_new, t)
-        done = np.abs(t_new - t) <= tolerance
-        t = t_new
-        if np.all(done):
-            break
-    diff = batch.evaluate(curve, t)[0] - q
-    d2 = np.einsum("ij,ij->i", diff, diff)
+    n = t.shape[0]
+    # Evaluated at the clamped t, but t itself is what is kept and stepped from, as
+    # before: a start may lie an ulp outside (then every step clamps anew).
+    tc = np.minimum(np.maximum(t, lo), hi)
+    clamp = np.count_nonzero(tc != t) > 0
+    terms = np.empty((3, 2, n))                 # s − q, s', s'' of every start
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for step in range(_CLOSEST_MAX_NEWTON):
+            if step and clamp:
+                tc = np.minimum(np.maximum(t, lo), hi)
+            elif step:
+                tc = t
+            key.imag = tc
+            piece = keys.searchsorted(key, side="right")
+            piece -= 1
+            _value_slope_curvature(coeffs.take(piece, axis=2), tc - piece_lo.take(piece), terms)
+            terms[0] -= qt
+            # (s − q)·(s − q), (s − q)·s', (s − q)·s'' and s'·s', each summed x + y as
+            # einsum("ij,ij->i") summed them (bit-identical)
+            prod = terms * terms[0]
+            d2, f, fp = prod[:, 0] + prod[:, 1]
+            better = d2 < d2_best
+            np.copyto(t_best, t, where=better)
+            np.copyto(d2_best, d2, where=better)
+            speed2 = terms[1] * terms[1]
+            speed2 = speed2[0] + speed2[1]
+            fp += speed2                       # the same sum as speed2 + (s − q)·s''
+            np.copyto(fp, speed2, where=~(fp > 0))
+            t_new = np.divide(f, fp, out=f)
+            np.subtract(t, t_new, out=t_new)
+            np.maximum(t_new, lo, out=t_new)
+            np.minimum(t_new, hi, out=t_new)
+            np.copyto(t_new, t, where=np.isnan(t_new))    # clamped: NaN is the only non-finite
+            done = np.abs(t_new - t) <= tolerance
+            t = t_new
+            if np.count_nonzero(done) == n:
+                break
+    dx, dy = _evaluate_points(batch, curve, t) - qt
+    d2 = dx * dx + dy * dy
     final = d2 <= d2_best * (1.0 + 1e-12)
-    t_best[final] = t[final]
-    d2_best[final] = d2[final]
+    np.copyto(t_best, t, where=final)
+    np.copyto(d2_best, d2, where=final)
     return t_best, d2_best

@@ -99,6 +99,13 @@ def horner_with_derivatives(coeffs: np.ndarray, u: np.ndarray, nder: int) -> np.
     """
     degree = coeffs.shape[1] - 1
     uu = u.reshape(u.shape + (1,) * (coeffs.ndim - 2))
+    if nder == 0:
+        # values only (the common call): the same operations without the zeroed buffer
+        v = coeffs[:, degree].copy() if degree == 0 else coeffs[:, degree]
+        for i in range(degree - 1, -1, -1):
+            v = v * uu
+            v += coeffs[:, i]
+        return v[None]
     out = np.zeros((nder + 1,) + coeffs.shape[:1] + coeffs.shape[2:])
     out[0] = coeffs[:, degree]
     # Horner on the value and, interleaved, on the derivatives (Knuth's scheme): after the
