@@ -1,5 +1,6 @@
-"""The state defers P ← P − Z Zᵀ (P = base − D Dᵀ): whatever is read, transformed, appended
-or removed in between, it equals the dense covariance, and folding keeps P exactly symmetric."""
+"""The state defers P ← P − Z Zᵀ, Z = P[:, cols] W, and keeps it compressed as
+P = base − B G Bᵀ: whatever is read, transformed, appended or removed in between, it equals
+the dense covariance, and folding keeps P exactly symmetric."""
 
 import numpy as np
 
@@ -12,47 +13,90 @@ def random_spd(rng, n):
     return A @ A.T / n + 0.1 * np.eye(n)
 
 
+def column_update(dense, cols, W):
+    Z = dense[:, cols] @ W
+    return dense - Z @ Z.T
+
+
+def assert_reads_match(state, dense, cols):
+    np.testing.assert_allclose(state.columns(cols), dense[:, cols], atol=1e-12)
+    np.testing.assert_allclose(state.rows(cols), dense[cols], atol=1e-12)
+    np.testing.assert_allclose(state.block(cols[2:], cols), dense[np.ix_(cols[2:], cols)], atol=1e-12)
+    np.testing.assert_allclose(state.diagonal(cols), np.diag(dense)[cols], atol=1e-12)
+    np.testing.assert_allclose(state.pose_covariance, dense[:3, :3], atol=1e-12)
+
+
 def test_pending_updates_read_and_fold_like_the_dense_covariance():
     rng = np.random.default_rng(7)
     n = 300   # more than one fold block of rows
     P = random_spd(rng, n)
-    state = JointState(np.zeros(3), P[:3, :3], capacity=4, max_pending=10)
+    state = JointState(np.zeros(3), P[:3, :3], capacity=4, max_pending=12)
     state.append(np.zeros(n - 3), P[3:, :3], P[3:, 3:])
     dense = P.copy()
-    cols = np.array([0, 1, 2, 17, 40, 299])
-    for k in (4, 5, 3, 12, 2):   # fills the pending buffer, overflows it, exceeds its width
-        Z = rng.normal(size=(n, k)) * 0.05
-        state.subtract_low_rank(Z)
-        dense -= Z @ Z.T
-        np.testing.assert_allclose(state.columns(cols), dense[:, cols], atol=1e-12)
-        np.testing.assert_allclose(state.block(cols[2:], cols), dense[np.ix_(cols[2:], cols)], atol=1e-12)
-        np.testing.assert_allclose(state.diagonal(cols), np.diag(dense)[cols], atol=1e-12)
-        np.testing.assert_allclose(state.pose_covariance, dense[:3, :3], atol=1e-12)
-    assert state.pending.shape[1] > 0
+    probe = np.array([0, 1, 2, 17, 40, 299])
+    # overlapping column sets fill the basis slowly, then overflow it (a fold), then one
+    # update is wider than the whole basis
+    for cols in ([0, 1, 2, 17, 18], [0, 1, 2, 17, 18, 19], [0, 1, 2, 18, 19, 40], [0, 1, 2, 100, 101, 102, 299],
+                 list(range(0, 30))):
+        cols = np.array(cols)
+        W = rng.normal(size=(cols.size, 3)) * 0.05
+        state.subtract_column_update(cols, W)
+        dense = column_update(dense, cols, W)
+        assert_reads_match(state, dense, probe)
+        assert_reads_match(state, dense, cols)
+    assert state.pending_rank == 0   # the last update was wider than the basis: folded
+    cols = np.array([0, 1, 2, 5])
+    W = rng.normal(size=(4, 2)) * 0.05
+    state.subtract_column_update(cols, W)
+    dense = column_update(dense, cols, W)
+    assert state.pending_rank == 4   # the basis holds each touched base column once
     np.testing.assert_allclose(state.P, dense, atol=1e-12)
-    assert state.pending.shape[1] == 0
     np.testing.assert_array_equal(state.P, state.P.T)
+    assert state.pending_rank == 0
 
 
-def test_prediction_transform_append_and_removal_carry_the_pending_term():
+def test_a_basis_shared_by_updates_stays_exact():
+    rng = np.random.default_rng(9)
+    n = 60
+    P = random_spd(rng, n)
+    state = JointState(np.zeros(3), P[:3, :3], capacity=4, max_pending=64)
+    state.append(np.zeros(n - 3), P[3:, :3], P[3:, 3:])
+    dense = P.copy()
+    cols = np.array([0, 1, 2, 10, 11, 12, 13])
+    for _ in range(6):   # the same columns: the basis does not grow
+        W = rng.normal(size=(cols.size, cols.size)) * 0.1
+        state.subtract_column_update(cols, W)
+        dense = column_update(dense, cols, W)
+    assert state.pending_rank == cols.size
+    assert_reads_match(state, dense, np.arange(n))
+    np.testing.assert_allclose(state.P, dense, atol=1e-12)
+
+
+def test_prediction_transform_appends_and_removal_carry_the_pending_term():
     rng = np.random.default_rng(8)
     n = 40
     P = random_spd(rng, n)
     state = JointState(rng.normal(size=3), P[:3, :3], capacity=4, max_pending=64)
     state.append(rng.normal(size=n - 3), P[3:, :3], P[3:, 3:])
-    Z = rng.normal(size=(n, 6)) * 0.05
-    state.subtract_low_rank(Z)
-    dense = P - Z @ Z.T
+    cols = np.array([0, 1, 2, 5, 9, 30])
+    W = rng.normal(size=(6, 4)) * 0.05
+    state.subtract_column_update(cols, W)
+    dense = column_update(P, cols, W)
     x = state.x.copy()
-    # prediction on the base, F_x carried through the pending term
+    # prediction on the base, F_x carried through the pending term (and Q on the pose)
     delta, Q = np.array([0.3, 0.05, 0.1]), np.diag([1e-4, 1e-4, 1e-5])
     F_x = predict(state.x, state.base, delta, Q)
     state.transform_pending(POSE, F_x)
     predict(x, dense, delta, Q)
     np.testing.assert_allclose(state.x, x, atol=1e-15)
     np.testing.assert_allclose(state.columns(np.arange(n)), dense, atol=1e-12)
-    # an extension's transform of a block
-    idx = np.array([5, 9, 10, 30])
+    # the same columns updated again after the prediction
+    W = rng.normal(size=(6, 4)) * 0.05
+    state.subtract_column_update(cols, W)
+    dense = column_update(dense, cols, W)
+    np.testing.assert_allclose(state.columns(np.arange(n)), dense, atol=1e-12)
+    # an extension's transform of a block, partly in the basis
+    idx = np.array([5, 9, 10, 31])
     T = rng.normal(size=(4, 4))
     state.transform(idx, T)
     A = np.eye(n)
@@ -60,15 +104,36 @@ def test_prediction_transform_append_and_removal_carry_the_pending_term():
     dense = A @ dense @ A.T
     x[idx] = T @ x[idx]
     np.testing.assert_allclose(state.x, x, atol=1e-12)
+    state.subtract_column_update(cols, W)
+    dense = column_update(dense, cols, W)
     np.testing.assert_allclose(state.columns(np.arange(n)), dense, atol=1e-12)
-    # new entries, then removal of some old and some new ones
+    # entries that depend linearly on old ones keep the basis valid
+    src = np.array([0, 1, 2, 9, 30])
+    J = rng.normal(size=(4, 5))
+    noise = 0.01 * np.eye(4)
+    state.append_dependent(np.ones(4), src, J, noise)
+    cross = J @ dense[src]
+    dense = np.block([[dense, cross.T], [cross, cross[:, src] @ J.T + noise]])
+    n += 4
+    np.testing.assert_allclose(state.columns(np.arange(n)), dense, atol=1e-12)
+    cols = np.array([0, 1, 2, 9, n - 1])
+    W = rng.normal(size=(5, 2)) * 0.05
+    state.subtract_column_update(cols, W)
+    dense = column_update(dense, cols, W)
+    np.testing.assert_allclose(state.columns(np.arange(n)), dense, atol=1e-12)
+    # entries with a given cross covariance, then removal of some old and some new ones
     cross = rng.normal(size=(3, n)) * 0.01
     state.append(np.ones(3), cross, np.eye(3))
     dense = np.block([[dense, cross.T], [cross, np.eye(3)]])
-    gone = np.array([4, 20, n + 1])
+    n += 3
+    state.subtract_column_update(cols, W)
+    dense = column_update(dense, cols, W)
+    gone = np.array([4, 20, n - 2])
     state.remove(gone)
-    keep = np.setdiff1d(np.arange(n + 3), gone)
+    keep = np.setdiff1d(np.arange(n), gone)
     dense = dense[np.ix_(keep, keep)]
     np.testing.assert_allclose(state.columns(np.arange(keep.size)), dense, atol=1e-12)
+    state.subtract_column_update(np.array([0, 1, 2, 8]), W[:4])
+    dense = column_update(dense, np.array([0, 1, 2, 8]), W[:4])
     np.testing.assert_allclose(state.P, dense, atol=1e-12)
     np.testing.assert_array_equal(state.P, state.P.T)

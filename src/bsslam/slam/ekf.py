@@ -4,7 +4,7 @@
 so everything is built from those columns (``cols``): ``P Hᵀ = P[:, cols] H_cᵀ``. The
 covariance correction ``P ← P − P Hᵀ S⁻¹ H P`` is applied as a symmetric low-rank update
 ``P ← P − Z Zᵀ`` with rank min(beams, touched columns), which :class:`JointState` defers
-and folds in several at a time: that is the only O(n²) work of a scan. The Joseph form
+and folds in once many scans have gathered: that is the only O(n²) work. The Joseph form
 would cost O(n³) on the full state; instead the result is exactly symmetric (the fold
 writes both triangles from the same products) and its pose block is checked; the tests
 check symmetry and positive definiteness on every simulated run.
@@ -135,7 +135,7 @@ class StackedGain:
         if Y.shape[0] > Y.shape[1]:
             qr_, _, _, _ = dgeqrf(Y)                   # YᵀY = R_yᵀ R_y
             Y = np.triu(qr_[: Y.shape[1]])
-        state.subtract_low_rank(self.P_c @ Y.T)
+        state.subtract_column_update(self.cols, Y.T)   # Z = P_c Yᵀ
         # exactly known components (zero variance, e.g. a fixed start) stay 0; negative is broken
         if np.any(np.diag(state.pose_covariance) < -1e-12):
             raise FilterError("pose covariance lost positive definiteness in the update")

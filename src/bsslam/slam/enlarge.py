@@ -64,12 +64,11 @@ class LinearBlock:
     J: np.ndarray
     G_z: np.ndarray
 
-    def covariance_terms(self, P_cols: np.ndarray, range_variance: float) -> tuple[np.ndarray, np.ndarray]:
-        """(cross (q, n), block (q, q)) for :meth:`JointState.append`, from the (n, c)
-        columns ``P[:, cols]`` (= the rows ``P[cols, :]`` transposed, P being symmetric)."""
-        cross = self.J @ P_cols.T
-        block = cross[:, self.cols] @ self.J.T + range_variance * (self.G_z @ self.G_z.T)
-        return cross, block
+    def noise(self, range_variance: float) -> np.ndarray:
+        """(q, q) the ranges' share of the new entries' covariance, R G_z G_zᵀ (m²); the
+        rest, J P[cols, cols] Jᵀ and the cross terms J P[cols, :], are the state's
+        (:meth:`JointState.append_dependent`)."""
+        return range_variance * (self.G_z @ self.G_z.T)
 
 
 def stacked_map(A: np.ndarray, bp: BeamPoints) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

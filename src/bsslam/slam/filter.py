@@ -488,8 +488,7 @@ class SplineSLAM:
         if cfg.mode == "localization":
             feature.fixed_control_points = block.mean.reshape(2, n).T.copy()
         else:
-            cross, cov = block.covariance_terms(self.state.columns(block.cols), self._range_variance)
-            idx = self.state.append(block.mean, cross, cov)
+            idx = self.state.append_dependent(block.mean, block.cols, block.J, block.noise(self._range_variance))
             feature.idx_x, feature.idx_y = idx[:n], idx[n:]
         self.features[feature.id] = feature
         self._map_changed()
@@ -520,8 +519,7 @@ class SplineSLAM:
             self._map_changed()
             return True
         block = extension_block(new_rows, n_old, f.idx_x, f.idx_y, curve.control_points, bp)
-        cross, cov = block.covariance_terms(self.state.columns(block.cols), self._range_variance)
-        new_idx = self.state.append(block.mean, cross, cov)
+        new_idx = self.state.append_dependent(block.mean, block.cols, block.J, block.noise(self._range_variance))
         self._transform_block(f.idx_x, ext.T)
         self._transform_block(f.idx_y, ext.T)
         new_x, new_y = new_idx[:m], new_idx[m:]

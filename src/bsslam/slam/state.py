@@ -9,13 +9,23 @@ only the spline's index arrays record the curve order.
 Storage grows with amortised capacity (doubling), so adding a feature costs the copy of the
 new rows and columns only, not a reallocation of ``P``.
 
-The EKF update ``P ← P − Z Zᵀ`` (Z of rank k ≈ 10–90 per scan) is deferred: the state keeps
-a base matrix and a pending factor D with ``P = base − D Dᵀ``, and folds D into the base
-only when it has gathered ``max_pending`` columns. An update costs little arithmetic
-(n²k) but one pass over all of P — 62 MB at n = 2800 — and the pass, not the arithmetic,
-was the cost; folding several updates at once makes one pass serve them all. Everything
-the filter reads per scan (columns, rows and blocks of P, the pose covariance) is served
-exactly as base − D Dᵀ on those entries, at O(n·K·c).
+The EKF update ``P ← P − Z Zᵀ`` (Z = P[:, cols] W, rank k ≈ 10–90 per scan) is deferred,
+and stored compressed. The state keeps a base matrix, a basis B (n, a) and a small PSD
+matrix G (a, a) with ``P = base − B G Bᵀ``. When an update touches the state index j for
+the first time since the last fold, the column ``base[:, j]`` joins the basis; then
+``P[:, cols] = B C`` for a small coefficient matrix C, so the update only adds
+``(C W)(C W)ᵀ`` to G. Successive scans see mostly the same walls, so the basis grows by far
+less than the rank of each update (this is the compressed filter of Guivant and Nebot, with
+the active set found on the fly). The pending term is folded into the base (the one O(n²·a)
+pass, where the arithmetic of the whole O(n²) update now happens) only when the basis is
+full. Everything the filter reads per scan (rows, columns, blocks of P, the pose
+covariance) is served exactly as base − B G Bᵀ on those entries.
+
+A basis column stays equal to its base column under the row operations the filter applies
+to both (prediction on the pose rows, an extension's T, new entries that are linear in old
+ones, removal). Operations that change a base column otherwise (the prediction's Q on the
+pose, an extension's T on its own columns, new entries with a given cross covariance) only
+unregister it: it joins the basis again, as a new column, when it is next updated.
 """
 
 from __future__ import annotations
@@ -33,11 +43,11 @@ POSE = np.arange(3)
 ROW_PAD = 8
 
 
-#: Pending columns folded into the base at once. Larger means fewer passes over P but dearer
-#: column gathers (n·K·c each). Per scan (rank 45, three 60-column gathers, one core) this
-#: cost 5.8 ms at n = 1000 and 37 ms at n = 2800, against 7.3 and 50 ms folding every scan;
-#: 256 was 6.3 and 29 ms. The full Intel run was the same within noise at 128 and 256.
-MAX_PENDING = 128
+#: Basis columns of the pending term before it is folded in. Larger means fewer passes over P
+#: but dearer reads (n·a per row read). On intel-rawodom the updates touch 36 state indices
+#: on average; with 256 the basis fills after about 24 updates, and the fold's arithmetic
+#: is 0.29 of folding every update's own rank (replayed from the run's recorded updates).
+MAX_PENDING = 256
 
 #: Rows of P per block when the pending factor is folded in: a block row of the product
 #: (b × n doubles) stays in the L2 cache while it is subtracted from P.
@@ -49,8 +59,8 @@ class JointState:
 
     ``x`` and ``P`` are views of the live part of larger buffers; they are replaced (not
     resized in place) when the buffers grow, so never keep them across an ``append``.
-    Reading ``P`` first folds any pending low-rank update into it (one O(n²) pass); the
-    per-scan code uses :meth:`columns`, :meth:`block` and :attr:`pose_covariance` instead.
+    Reading ``P`` first folds any pending update into it (one O(n²) pass); the per-scan code
+    uses :meth:`rows`, :meth:`columns`, :meth:`block` and :attr:`pose_covariance` instead.
     """
 
     def __init__(self, pose: np.ndarray, pose_covariance: np.ndarray, capacity: int = 64,
@@ -58,8 +68,10 @@ class JointState:
         capacity = max(int(capacity), 3)
         self._x = np.zeros(capacity)
         self._P = np.zeros((capacity, capacity + ROW_PAD))
-        self._D = np.zeros((capacity, max_pending))   # pending factor, its first k columns live
-        self._k = 0
+        self._B = np.zeros((capacity, max_pending))   # basis of the pending term, first a columns live
+        self._G = np.zeros((max_pending, max_pending))
+        self._a = 0
+        self._reg = np.full(capacity, -1, dtype=np.intp)   # basis column equal to base[:, j], or −1
         self.size = 3
         self._x[:3] = np.asarray(pose, dtype=float)
         C = np.asarray(pose_covariance, dtype=float)
@@ -79,14 +91,14 @@ class JointState:
 
     @property
     def base(self) -> np.ndarray:
-        """(n, n) the covariance less the pending term D Dᵀ (a view). Only for code that
-        transforms rows and columns of P and carries :attr:`pending` along."""
+        """(n, n) the covariance less the pending term B G Bᵀ (a view). Only for code that
+        transforms rows and columns of P and then calls :meth:`transform_pending`."""
         return self._P[: self.size, : self.size]
 
     @property
-    def pending(self) -> np.ndarray:
-        """(n, k) the pending factor D of ``P = base − D Dᵀ`` (a view; k may be 0)."""
-        return self._D[: self.size, : self._k]
+    def pending_rank(self) -> int:
+        """Columns of the pending term's basis (0 when nothing is pending)."""
+        return self._a
 
     @property
     def capacity(self) -> int:
@@ -99,15 +111,18 @@ class JointState:
     @property
     def pose_covariance(self) -> np.ndarray:
         """(3, 3) covariance of the pose (a new array)."""
-        D = self._D[:3, : self._k]
-        return self._P[:3, :3] - D @ D.T
+        return self.block(POSE, POSE)
+
+    def _pending_rows(self, rows: np.ndarray) -> np.ndarray:
+        """(r, a) B[rows] G: the pending term's rows are this times Bᵀ."""
+        a = self._a
+        return self._B[rows, :a] @ self._G[:a, :a]
 
     def rows(self, rows: np.ndarray) -> np.ndarray:
         """(r, n) ``P[rows, :]`` (a new, C-ordered array)."""
         out = self.base[rows]
-        if self._k:
-            D = self.pending
-            out -= D[rows] @ D.T
+        if self._a:
+            out -= self._pending_rows(rows) @ self._B[: self.size, : self._a].T
         return out
 
     def columns(self, cols: np.ndarray) -> np.ndarray:
@@ -119,38 +134,64 @@ class JointState:
     def block(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """(r, c) ``P[np.ix_(rows, cols)]`` (a new array)."""
         out = self.base[np.ix_(rows, cols)]
-        if self._k:
-            D = self.pending
-            out -= D[rows] @ D[cols].T
+        if self._a:
+            out -= self._pending_rows(rows) @ self._B[cols, : self._a].T
         return out
 
     def diagonal(self, rows: np.ndarray) -> np.ndarray:
         """(r,) ``P[rows, rows]`` (a new array)."""
         out = self.base[rows, rows]
-        if self._k:
-            D = self.pending[rows]
-            out -= np.einsum("ij,ij->i", D, D)
+        if self._a:
+            out -= np.einsum("ij,ij->i", self._pending_rows(rows), self._B[rows, : self._a])
         return out
 
     # -- the update ----------------------------------------------------------------------
+    def subtract_column_update(self, cols: np.ndarray, W: np.ndarray) -> None:
+        """P ← P − Z Zᵀ with Z = P[:, cols] W, for cols (c,) and W (c, k): the EKF update
+        (W = Hᵀ L⁻ᵀ), deferred and compressed (see the module docstring).
+
+        Costs O(a²·(c + k)) when the touched columns are in the basis, plus n·c copied for
+        each column that joins it; the O(n²·a) fold happens when the basis is full."""
+        cols = np.asarray(cols, dtype=np.intp)
+        W = np.asarray(W, dtype=float)
+        if W.shape[0] != cols.shape[0]:
+            raise FilterError(f"column update: {cols.shape[0]} columns but W has {W.shape[0]} rows")
+        joining = np.unique(cols[self._reg[cols] < 0])
+        if self._a + joining.shape[0] > self._B.shape[1]:
+            self.fold()
+            joining = np.unique(cols)
+        if joining.shape[0] > self._B.shape[1]:   # wider than the whole basis: straight into the base
+            _subtract_outer(self.base, self.columns(cols) @ W)
+            return
+        a0, a = self._a, self._a + joining.shape[0]
+        n = self.size
+        self._B[:n, a0:a] = self.base[joining].T    # base is symmetric: its rows are its columns
+        self._reg[joining] = np.arange(a0, a)
+        self._a = a
+        # P[:, cols] = base[:, cols] − B G B[cols]ᵀ = B C: base[:, cols] is a basis column
+        C = -(self._G[:a, :a] @ self._B[cols, :a].T)
+        C[self._reg[cols], np.arange(cols.shape[0])] += 1.0
+        E = C @ W
+        self._G[:a, :a] += E @ E.T
+
     def subtract_low_rank(self, Z: np.ndarray) -> None:
-        """P ← P − Z Zᵀ for Z (n, k), deferred (see the module docstring)."""
+        """P ← P − Z Zᵀ for a given Z (n, k): folds the pending term first, then one O(n²k)
+        pass. The filter's updates use :meth:`subtract_column_update`."""
         n, k = Z.shape
         if n != self.size:
             raise FilterError(f"low-rank update of {n} rows for a state of size {self.size}")
-        if self._k + k > self._D.shape[1]:
-            self.fold()
-        if k > self._D.shape[1]:        # wider than the whole buffer: straight into the base
-            _subtract_outer(self.base, Z)
-            return
-        self._D[:n, self._k : self._k + k] = Z
-        self._k += k
+        self.fold()
+        _subtract_outer(self.base, Z)
 
     def fold(self) -> None:
-        """Fold the pending update into the base: base ← base − D Dᵀ, D ← empty."""
-        if self._k:
-            _subtract_outer(self.base, self.pending)
-            self._k = 0
+        """Fold the pending update into the base: base ← base − B G Bᵀ, basis emptied."""
+        a, n = self._a, self.size
+        if a:
+            B = self._B[:n, :a]
+            _subtract_outer(self.base, B @ self._G[:a, :a], B)
+            self._G[:a, :a] = 0.0
+            self._reg[:n] = -1
+            self._a = 0
 
     def transform(self, idx: np.ndarray, T: np.ndarray) -> None:
         """x[idx] ← T x[idx] and P ← A P Aᵀ, A the identity with T on the block ``idx``.
@@ -168,11 +209,14 @@ class JointState:
         self.transform_pending(idx, T)
 
     def transform_pending(self, idx: np.ndarray, T: np.ndarray) -> None:
-        """Carry A P Aᵀ (A as in :meth:`transform`) through the pending term: D[idx] ← T D[idx].
-        For code that transforms the rows and columns ``idx`` of :attr:`base` itself."""
-        if self._k:
-            D = self.pending
-            D[idx] = T @ D[idx]
+        """Carry A P Aᵀ (A as in :meth:`transform`) through the pending term, B[idx] ← T B[idx],
+        for code that has transformed the rows and columns ``idx`` of :attr:`base` itself
+        (and possibly added to them, as the prediction adds Q): those base columns leave
+        the basis."""
+        if self._a:
+            B = self._B[:, : self._a]
+            B[idx] = T @ B[idx]
+        self._reg[idx] = -1
 
     # -- growth --------------------------------------------------------------------------
     def _reserve(self, new_size: int) -> None:
@@ -181,16 +225,19 @@ class JointState:
         capacity = self.capacity
         while capacity < new_size:
             capacity *= 2
+        n = self.size
         x = np.zeros(capacity)
         P = np.zeros((capacity, capacity + ROW_PAD))
-        D = np.zeros((capacity, self._D.shape[1]))
-        x[: self.size] = self.x
-        P[: self.size, : self.size] = self.base
-        D[: self.size, : self._k] = self.pending
-        self._x, self._P, self._D = x, P, D
+        B = np.zeros((capacity, self._B.shape[1]))
+        reg = np.full(capacity, -1, dtype=np.intp)
+        x[:n] = self.x
+        P[:n, :n] = self.base
+        B[:n, : self._a] = self._B[:n, : self._a]
+        reg[:n] = self._reg[:n]
+        self._x, self._P, self._B, self._reg = x, P, B, reg
 
     def append(self, mean: np.ndarray, cross: np.ndarray, block: np.ndarray) -> np.ndarray:
-        """Augment the state with k new entries.
+        """Augment the state with k new entries of given covariance.
 
         Args:
             mean: (k,) their values.
@@ -205,11 +252,44 @@ class JointState:
             raise FilterError(f"append: cross {cross.shape} / block {block.shape} do not fit k={k}, n={n}")
         self._reserve(n + k)
         self._x[n : n + k] = mean
-        # P = base − D Dᵀ with zero rows of D for the new entries: the base holds them exactly
+        # P = base − B G Bᵀ with zero rows of B for the new entries: the base holds them
+        # exactly, and no base column is a basis column any more (its new rows are not B's)
         self._P[n : n + k, :n] = cross
         self._P[:n, n : n + k] = cross.T
         self._P[n : n + k, n : n + k] = 0.5 * (block + block.T)
-        self._D[n : n + k, : self._k] = 0.0
+        self._B[n : n + k, : self._a] = 0.0
+        self._reg[: n + k] = -1
+        self.size = n + k
+        return np.arange(n, n + k)
+
+    def append_dependent(self, mean: np.ndarray, cols: np.ndarray, J: np.ndarray,
+                         noise: np.ndarray) -> np.ndarray:
+        """Augment the state with k entries v = J x[cols] + w, w independent of the state
+        with covariance ``noise``: Cov(v, x) = J P[cols, :], Cov(v) = J P_cc Jᵀ + noise.
+
+        Both parts of P = base − B G Bᵀ get the new rows by the same map (base rows J base[cols],
+        basis rows J B[cols]), so the pending term carries over and the basis stays valid.
+
+        Args:
+            mean: (k,) their values; cols: (c,) state indices; J: (k, c); noise: (k, k).
+        Returns:
+            (k,) the new state indices.
+        """
+        mean = np.asarray(mean, dtype=float).reshape(-1)
+        cols = np.asarray(cols, dtype=np.intp)
+        k, n = mean.shape[0], self.size
+        if J.shape != (k, cols.shape[0]) or noise.shape != (k, k):
+            raise FilterError(f"append: J {J.shape} / noise {noise.shape} do not fit k={k}, c={cols.shape[0]}")
+        self._reserve(n + k)
+        self._x[n : n + k] = mean
+        cross = J @ self.base[cols]                        # (k, n) rows: base is symmetric
+        block = cross[:, cols] @ J.T + noise
+        self._P[n : n + k, :n] = cross
+        self._P[:n, n : n + k] = cross.T
+        self._P[n : n + k, n : n + k] = 0.5 * (block + block.T)
+        if self._a:
+            self._B[n : n + k, : self._a] = J @ self._B[cols, : self._a]
+        self._reg[n : n + k] = -1
         self.size = n + k
         return np.arange(n, n + k)
 
@@ -238,7 +318,9 @@ class JointState:
             self._x[first:m] = self._x[tail]
             self._P[first:m, :n] = self._P[tail, :n]
             self._P[:m, first:m] = self._P[:m, tail]
-            self._D[first:m, : self._k] = self._D[tail, : self._k]
+            self._B[first:m, : self._a] = self._B[tail, : self._a]
+            self._reg[first:m] = self._reg[tail]
+        self._reg[m:n] = -1
         self.size = m
         mapping = np.full(n, -1)
         mapping[kept] = np.arange(m)
@@ -250,14 +332,18 @@ class JointState:
         P *= 0.5
 
 
-def _subtract_outer(P: np.ndarray, D: np.ndarray, block: int = FOLD_BLOCK) -> None:
-    """P ← P − D Dᵀ in place for a symmetric (n, n) P and D (n, k), exactly symmetric.
+def _subtract_outer(P: np.ndarray, D: np.ndarray, E: np.ndarray | None = None, block: int = FOLD_BLOCK) -> None:
+    """P ← P − D Eᵀ in place (E = D by default) for a symmetric (n, n) P and (n, k) D, E
+    whose product is symmetric in exact arithmetic; the result is exactly symmetric.
 
     By row blocks of the lower triangle: each off-diagonal product block is subtracted from
     the block below the diagonal and, transposed, from its mirror above, so both get the
-    same numbers; the diagonal blocks are ``D_b @ D_b.T``, which numpy computes with syrk
-    (exactly symmetric). One read and one write of P, n²k multiply-adds.
+    same numbers; the diagonal blocks are symmetrised (with E = D, ``D_b @ D_b.T`` is
+    computed by syrk and exactly symmetric already). One read and one write of P, n²k/2
+    multiply-adds.
     """
+    if E is None:
+        E = D
     n = P.shape[0]
     # one scratch for the product blocks: fresh multi-megabyte temporaries per block would
     # each be mapped and page-faulted anew
@@ -267,7 +353,10 @@ def _subtract_outer(P: np.ndarray, D: np.ndarray, block: int = FOLD_BLOCK) -> No
         Db = D[i0:i1]
         if i0:
             T = scratch[: (i1 - i0) * i0].reshape(i1 - i0, i0)
-            np.matmul(Db, D[:i0].T, out=T)
+            np.matmul(Db, E[:i0].T, out=T)
             P[i0:i1, :i0] -= T
             P[:i0, i0:i1] -= T.T
-        P[i0:i1, i0:i1] -= Db @ Db.T
+        diag = Db @ E[i0:i1].T
+        if E is not D:
+            diag = 0.5 * (diag + diag.T)
+        P[i0:i1, i0:i1] -= diag
