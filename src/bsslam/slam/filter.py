@@ -254,7 +254,7 @@ class SplineSLAM:
             return [[] for _ in observed]
         lp = laser_pose(self.state.pose, offset)
         cp = mc.control_points(self.state.x)
-        b = mc.table.bboxes(cp)
+        b = mc.bboxes(self.state.x)
         # distance from the robot to each box; only nearby features are candidates
         dx = np.maximum(np.maximum(b[:, 0] - lp[0], 0.0), lp[0] - b[:, 2])
         dy = np.maximum(np.maximum(b[:, 1] - lp[1], 0.0), lp[1] - b[:, 3])
@@ -274,16 +274,19 @@ class SplineSLAM:
             world.control_points, np.arange(table.n_curves), lp[:2], farthest=True)]  # (k, 2)
         near = mc.state_rows[mc.table.extreme_control_points(cp, candidates, lp[:2])]  # (F, 2)
         fixed = near[:, 0] < 0
-        rows = np.maximum(near, 0).ravel()
-        cross = self.state.block(POSE, rows).reshape(3, -1, 2)
-        map_var = self.state.diagonal(rows).reshape(-1, 2).sum(axis=1)
-        cross[:, fixed] = 0.0
-        map_var[fixed] = 0.0
+        if fixed.all():   # localisation: the map is known exactly
+            cross, map_var = np.zeros((3, near.shape[0], 2)), np.zeros(near.shape[0])
+        else:
+            rows = np.maximum(near, 0).ravel()
+            cross = self.state.block(POSE, rows).reshape(3, -1, 2)
+            map_var = self.state.diagonal(rows).reshape(-1, 2).sum(axis=1)
+            cross[:, fixed] = 0.0
+            map_var[fixed] = 0.0
         sigma = relative_sigma(self.state.pose, self.state.pose_covariance, far, cross, map_var)
         grow = cfg.uncertainty_sigmas * sigma                                   # (k, F)
         delta = np.minimum(cfg.match_distance_m + grow, cfg.max_match_distance_m)
         gate = cfg.control_point_gate_factor * self.config.spline.knot_spacing_m + grow
-        maps = mc.table.with_control_points(cp, candidates)
+        maps = mc.batch(self.state.x, candidates)
         return associate(world, maps, mc.ids, candidates, gate, delta)
 
     def _reassociate(self, observed, matches, offset, report: StepReport) -> None:

@@ -44,9 +44,15 @@ class MapCurves:
         self._in_state = self.state_rows[:, 0] >= 0
         self._all_in_state = bool(self._in_state.all())
         self._fixed = np.vstack(fixed)
+        # a map that never moves (localisation in a fixed map): its batch and boxes once
+        self._static = not self._in_state.any()
+        self._static_batch: CurveBatch | None = None
+        self._static_boxes: np.ndarray | None = None
 
     def control_points(self, x: np.ndarray) -> np.ndarray:
-        """(N, 2) stacked control points at the state mean ``x`` (m)."""
+        """(N, 2) stacked control points at the state mean ``x`` (m); do not modify them."""
+        if self._static:
+            return self._fixed
         cp = x[np.maximum(self.state_rows, 0)]
         if not self._all_in_state:
             cp = np.where(self._in_state[:, None], cp, self._fixed)
@@ -55,5 +61,17 @@ class MapCurves:
     def batch(self, x: np.ndarray, curves: np.ndarray | None = None) -> CurveBatch:
         """The map splines at the state mean ``x``; only ``curves`` (indices) can be
         queried when given (see :meth:`CurveTable.with_control_points`)."""
+        if self._static:
+            if self._static_batch is None:
+                self._static_batch = self.table.with_control_points(self._fixed)
+            return self._static_batch
         return self.table.with_control_points(self.control_points(x), curves)
+
+    def bboxes(self, x: np.ndarray) -> np.ndarray:
+        """(C, 4) bounding boxes (x_min, y_min, x_max, y_max) of the control polygons (m)."""
+        if self._static:
+            if self._static_boxes is None:
+                self._static_boxes = self.table.bboxes(self._fixed)
+            return self._static_boxes
+        return self.table.bboxes(self.control_points(x))
 

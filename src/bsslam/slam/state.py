@@ -157,7 +157,8 @@ class JointState:
         if W.shape[0] != cols.shape[0]:
             raise FilterError(f"column update: {cols.shape[0]} columns but W has {W.shape[0]} rows")
         joining = np.unique(cols[self._reg[cols] < 0])
-        if self._a + joining.shape[0] > self._B.shape[1]:
+        # a basis as wide as the state saves nothing: its fold is as cheap as an update
+        if self._a + joining.shape[0] > min(self._B.shape[1], self.size):
             self.fold()
             joining = np.unique(cols)
         if joining.shape[0] > self._B.shape[1]:   # wider than the whole basis: straight into the base
