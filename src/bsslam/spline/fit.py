@@ -513,7 +513,7 @@ def fit_curve(points: object, degree: int, spacing_m: float, params: object = No
     length = float(t[-1] - t[0])
     if not length > 0:
         raise FitError("all points share one parameter (coincident points); nothing to fit")
-    distinct, multiplicity, inverse = _distinct_sorted(t)
+    distinct, multiplicity, _ = _distinct_sorted(t)
     # n_control = spans + degree can never exceed the number of distinct parameters.
     most = most_spans = min(span_count(length, spacing_m), distinct.shape[0] - degree)
     # The most spans that give a well-posed fit win. On real scans the most spans nearly
@@ -524,13 +524,19 @@ def fit_curve(points: object, degree: int, spacing_m: float, params: object = No
     for _ in range(_DIRECT_TRIES):
         if most < 1:
             break
-        fit = _fit_with_spans(pts, t, inverse, distinct.shape[0], most, degree, max_noise_gain)
+        fit = _fit_with_spans(pts, t, distinct, most, degree, max_noise_gain)
         if isinstance(fit, FitResult):
             return fit
         if fit is not _REJECTED:  # undecided: the search decides this count and the rest
             break
         most -= 1
     for spans in iter_span_counts(t, distinct, multiplicity, degree, most, max_noise_gain):
+        fit = _fit_with_spans(pts, t, distinct, spans, degree, max_noise_gain)
+        if isinstance(fit, FitResult):
+            return fit
+        if fit is _REJECTED:
+            continue
+        # a knot vector with an empty span: find_span's clamping decides the spans
         knots = clamped_knots_with_spans(length, spans, degree, start=float(t[0]))
         knots[-degree - 1 :] = t[-1]  # exactly the last parameter, not start + length
         phi = least_squares_operator(collocation_matrix(knots, degree, t), max_noise_gain)
@@ -561,6 +567,23 @@ def _distinct_sorted(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return t[first], counts, inverse
 
 
+@functools.lru_cache(maxsize=1024)
+def _interior_ratios(spans: int) -> np.ndarray:
+    """``np.arange(1, spans) / spans`` (read-only, cached): the interior knots' fractions
+    of the length, as clamped_knots_with_spans computes them."""
+    ratios = np.arange(1, spans) / spans
+    ratios.setflags(write=False)
+    return ratios
+
+
+@functools.lru_cache(maxsize=1024)
+def _arange(n: int) -> np.ndarray:
+    """``np.arange(n)``, read-only and cached (fits ask for the same few sizes)."""
+    index = np.arange(n)
+    index.setflags(write=False)
+    return index
+
+
 # Span counts fit_curve decides one by one before it screens all the others at once: one
 # direct decision costs about a tenth of the screen's setup, and in refined fits (half the
 # knot spacing) the most spans fail about one time in five, nearly always for one or two
@@ -571,21 +594,21 @@ _DIRECT_TRIES = 1
 _REJECTED = object()
 
 
-def _fit_with_spans(pts: np.ndarray, t: np.ndarray, inverse: np.ndarray, d: int, spans: int, degree: int,
+def _fit_with_spans(pts: np.ndarray, t: np.ndarray, distinct: np.ndarray, spans: int, degree: int,
                     max_noise_gain: float | None) -> FitResult | object | None:
     """The fit on ``spans`` spans; :data:`_REJECTED` where :func:`fit_curve`'s search
     rejects that count (Schoenberg–Whitney on the distinct parameters, then
-    :func:`least_squares_operator`); None, undecided, if an end span of the knot vector is
-    empty (only for a length below the rounding of the start), where the search's span
-    lookup and :func:`find_span` could differ: the search decides then.
+    :func:`least_squares_operator`); None, undecided, if a span of the knot vector's
+    domain is empty (only for a length near the rounding of the start), where the search
+    decides.
 
-    One basis evaluation at the m parameters serves both tests and the collocation matrix;
-    rows of repeated parameters are identical, so the Schoenberg–Whitney match on them is
-    the one on the distinct parameters.
+    Schoenberg–Whitney follows from the knots and the distinct parameters alone (as in
+    :func:`iter_span_counts`); one basis evaluation at the m parameters gives the
+    collocation matrix.
 
     Args:
         pts: (m, 2) data points (m); t: (m,) their non-decreasing parameters (m).
-        inverse: (m,) index of each parameter among the d distinct ones.
+        distinct: (d,) the distinct values of ``t``.
         spans: number of spans ≥ 1; degree: polynomial degree p.
         max_noise_gain: as in :func:`fit_curve`.
     """
@@ -596,19 +619,25 @@ def _fit_with_spans(pts: np.ndarray, t: np.ndarray, inverse: np.ndarray, d: int,
     start = float(t[0])
     knots = np.empty(n + p + 1)
     knots[: p + 1] = start
-    knots[p + 1 : n] = start + float(t[-1] - t[0]) * (np.arange(1, spans) / spans)
+    knots[p + 1 : n] = start + float(t[-1] - t[0]) * _interior_ratios(spans)
     knots[n:] = t[-1]
-    if not (knots[p] < knots[p + 1] and knots[n - 1] < knots[n]):
+    if not np.all(knots[p + 1 : n + 1] > knots[p:n]):
         return None
-    # find_span, and the search's lookup, when neither end span is empty
+    # Schoenberg–Whitney: the first and last datum of every support (iter_span_counts)
+    first = np.searchsorted(distinct, knots[:n], side="right")
+    first[0] = 0
+    last = np.searchsorted(distinct, knots[p + 1 :], side="left")
+    last[-1] = distinct.shape[0]
+    index = _arange(n)
+    if not np.all(index + np.maximum.accumulate(first - index) < last):
+        return _REJECTED
+    # find_span, and the search's lookup, as no span is empty
     span = np.searchsorted(knots, t, side="right") - 1
     np.maximum(span, p, out=span)
     np.minimum(span, n - 1, out=span)
     _, values = basis_functions(knots, p, t, span=span)
     collocation = np.zeros((t.shape[0], n))
-    collocation[np.arange(t.shape[0])[:, None], span[:, None] - p + np.arange(p + 1)] = values[0]
-    if not _schoenberg_whitney_dense(collocation, inverse):
-        return _REJECTED
+    collocation[_arange(t.shape[0])[:, None], span[:, None] - p + _arange(p + 1)] = values[0]
     phi = least_squares_operator(collocation, max_noise_gain)
     if phi is None:
         return _REJECTED
