@@ -124,6 +124,15 @@ def segment_points_counted(points: np.ndarray, config: SegmentationConfig, *,
                            window_m: float = DEFAULT_WINDOW_M) -> tuple[list[np.ndarray], dict[str, int]]:
     """:func:`segment_points`, also returning counts: ``gap_cuts``, ``shape_cuts`` (direction
     or spacing), ``segments`` kept and ``rejected_segments`` (too few points or too short)."""
+    starts, ends, counts = segment_bounds_counted(points, config, beam_index=beam_index, window_m=window_m)
+    return [np.arange(s, e + 1) for s, e in zip(starts.tolist(), ends.tolist())], counts
+
+
+def segment_bounds_counted(points: np.ndarray, config: SegmentationConfig, *,
+                           beam_index: np.ndarray | None = None,
+                           window_m: float = DEFAULT_WINDOW_M) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+    """:func:`segment_points_counted` with each segment as its first and last row: (k,),
+    (k,) int arrays (segment j is ``points[starts[j] : ends[j] + 1]``), and the counts."""
     points = np.asarray(points, dtype=float)
     if points.ndim != 2 or points.shape[1] != 2:
         raise InputError(f"points must be (m, 2), got {points.shape}")
@@ -132,7 +141,7 @@ def segment_points_counted(points: np.ndarray, config: SegmentationConfig, *,
     m = points.shape[0]
     counts = {"gap_cuts": 0, "shape_cuts": 0, "segments": 0, "rejected_segments": 0}
     if m == 0:
-        return [], counts
+        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp), counts
     if beam_index is None:
         steps = np.arange(m, dtype=float)
     else:
@@ -157,8 +166,7 @@ def segment_points_counted(points: np.ndarray, config: SegmentationConfig, *,
     keep = (ends - starts + 1 >= config.min_points) & (path[ends] - path[starts] >= config.min_length_m)
     counts["segments"] = int(np.count_nonzero(keep))
     counts["rejected_segments"] = int(keep.shape[0] - counts["segments"])
-    segments = [np.arange(s, e + 1) for s, e in zip(starts[keep], ends[keep])]
-    return segments, counts
+    return starts[keep], ends[keep], counts
 
 
 def _shape_cuts(points: np.ndarray, edge_len: np.ndarray, path: np.ndarray, steps: np.ndarray,

@@ -515,13 +515,22 @@ def fit_curve(points: object, degree: int, spacing_m: float, params: object = No
         raise FitError("all points share one parameter (coincident points); nothing to fit")
     distinct, multiplicity, _ = _distinct_sorted(t)
     # n_control = spans + degree can never exceed the number of distinct parameters.
-    most = most_spans = min(span_count(length, spacing_m), distinct.shape[0] - degree)
+    most = min(span_count(length, spacing_m), distinct.shape[0] - degree)
+    return _fit_from(pts, t, distinct, multiplicity, degree, most, most, max_noise_gain, _DIRECT_TRIES)
+
+
+def _fit_from(pts: np.ndarray, t: np.ndarray, distinct: np.ndarray, multiplicity: np.ndarray, degree: int,
+              most: int, most_spans: int, max_noise_gain: float | None, tries: int) -> FitResult:
+    """:func:`fit_curve` from its span count ``most`` down (``most_spans``: its first
+    count, for the message), after its checks: ``tries`` counts decided directly, then the
+    search. Arguments as :func:`_fit_with_spans`, plus multiplicity (d,) of the distinct
+    parameters."""
     # The most spans that give a well-posed fit win. On real scans the most spans nearly
-    # always do (and else one or two fewer), so the first few counts are decided directly,
-    # each from one basis evaluation; only if they all fail are the remaining counts
-    # screened at once (Schoenberg–Whitney and a lower bound of the noise gain) and the
-    # survivors factorised, from the most spans down.
-    for _ in range(_DIRECT_TRIES):
+    # always do (and else one or two fewer), so the first count is decided directly, from
+    # one basis evaluation; only if it fails are the remaining counts screened at once
+    # (Schoenberg–Whitney and a lower bound of the noise gain) and the survivors
+    # factorised, from the most spans down.
+    for _ in range(tries):
         if most < 1:
             break
         fit = _fit_with_spans(pts, t, distinct, most, degree, max_noise_gain)
@@ -530,6 +539,7 @@ def fit_curve(points: object, degree: int, spacing_m: float, params: object = No
         if fit is not _REJECTED:  # undecided: the search decides this count and the rest
             break
         most -= 1
+    length = float(t[-1] - t[0])
     for spans in iter_span_counts(t, distinct, multiplicity, degree, most, max_noise_gain):
         fit = _fit_with_spans(pts, t, distinct, spans, degree, max_noise_gain)
         if isinstance(fit, FitResult):
@@ -545,8 +555,145 @@ def fit_curve(points: object, degree: int, spacing_m: float, params: object = No
         curve = BSplineCurve.unchecked(phi @ pts, knots, degree)
         return FitResult(curve=curve, phi=phi, params=t)
     raise FitError(
-        f"no degree-{degree} spline with 1..{max(most_spans, 1)} spans fits these {m} points "
+        f"no degree-{degree} spline with 1..{max(most_spans, 1)} spans fits these {pts.shape[0]} points "
         "(Schoenberg–Whitney fails: too few distinct points)")
+
+
+def fit_runs(points: np.ndarray, starts: np.ndarray, ends: np.ndarray, degree: int, spacing_m: float, *,
+             max_noise_gain: float | None = None) -> list[FitResult | None]:
+    """:func:`fit_curve` of each run ``points[starts[i] : ends[i] + 1]`` (default chord-length
+    parameters), the same results bit for bit, None where it raises FitError.
+
+    The runs of a scan share degree and spacing, so their parameters, knot vectors,
+    Schoenberg–Whitney tests and basis values at the most spans are computed for all runs
+    at once; each run then only factorises its collocation matrix. A run whose most spans
+    fail (or that is unusual: repeated parameters, an empty knot span) goes through
+    :func:`fit_curve`'s search, or fit_curve itself.
+
+    Args:
+        points: (M, 2) float64 points (m), the runs consecutive slices of them.
+        starts, ends: (S,) first and last row of each run (inclusive), ends ≥ starts.
+        degree, spacing_m, max_noise_gain: as in :func:`fit_curve`.
+
+    Returns:
+        S fit results, in run order.
+    """
+    p = check_degree(degree)
+    starts = np.asarray(starts, dtype=np.intp)
+    ends = np.asarray(ends, dtype=np.intp)
+    S = starts.shape[0]
+    if S == 0:
+        return []
+    pts_all = as_points(points)
+    sizes = ends - starts + 1
+    # chord lengths of every run: each run's cumulative sum alone (row-wise, so the same
+    # sequential sums as _chord_lengths), in a zero-padded (S, longest) table
+    step = pts_all[1:] - pts_all[:-1]
+    chord = np.hypot(step[:, 0], step[:, 1])
+    owner, local = _groups(sizes)
+    table = np.zeros((S, int(sizes.max())))
+    inner = local > 0
+    table[owner[inner], local[inner]] = chord[(starts[owner] + local - 1)[inner]]
+    np.cumsum(table, axis=1, out=table)
+    t_all = table[owner, local]                          # (Σm,) every run's parameters, from 0
+    last = np.cumsum(sizes) - 1                          # each run's last row in t_all
+    lengths = t_all[last]
+    # usual runs: enough points, distinct parameters (strictly increasing)
+    strict = np.ones(t_all.shape[0], dtype=bool)
+    strict[1:] = t_all[1:] > t_all[:-1]
+    strict[last[:-1] + 1] = True                         # run starts compare with nothing
+    distinct_all = np.bincount(owner, weights=~strict, minlength=S) == 0
+    usual = distinct_all & (sizes >= p + 1) & (lengths > 0)
+    results: list[FitResult | None] = [None] * S
+    most = np.zeros(S, dtype=np.intp)
+    for i in np.flatnonzero(usual):
+        most[i] = min(span_count(float(lengths[i]), spacing_m), int(sizes[i]) - p)
+    usual &= most >= 1
+    run = np.flatnonzero(usual)
+    if run.shape[0]:
+        _fit_usual_runs(pts_all, t_all[usual[owner]], run, starts, sizes[run], lengths[run], most[run], p,
+                        spacing_m, max_noise_gain, results)
+    for i in np.flatnonzero(~usual):
+        results[i] = _fit_or_none(pts_all[starts[i]: ends[i] + 1], p, spacing_m, max_noise_gain)
+    return results
+
+
+def _fit_usual_runs(pts_all, t, run, starts, sizes, lengths, most, p, spacing_m, max_noise_gain, results):
+    """:func:`fit_runs` of the R runs ``run`` with distinct parameters and most ≥ 1: their
+    knot vectors at the most spans, Schoenberg–Whitney and basis values all at once (as
+    :func:`_fit_with_spans` computes them for one), then one factorisation each.
+
+    Args:
+        pts_all: (M, 2) points; t: (Σ sizes,) the runs' parameters, run after run;
+        run: (R,) indices of the runs into ``results``; starts: first point of every run;
+        sizes, lengths, most: (R,) points, parameter length and most spans of each run;
+        results: the list to fill in.
+    """
+    R = run.shape[0]
+    n = most + p
+    # knot vectors, bit for bit as _fit_with_spans builds them (start 0: 0 + x is x)
+    k_owner, k_local = _groups(n + p + 1)
+    K = lengths[k_owner] * ((k_local - p) / most[k_owner])
+    K[k_local <= p] = 0.0
+    end_knot = np.flatnonzero(k_local >= n[k_owner])
+    K[end_knot] = lengths[k_owner[end_knot]]
+    knot_start = np.concatenate([[0], np.cumsum(n + p + 1)])
+    domain = (k_local[:-1] >= p) & (k_local[:-1] < n[k_owner[:-1]])
+    empty = np.bincount(k_owner[:-1], weights=domain & ~(K[1:] > K[:-1]), minlength=R) > 0
+    # Schoenberg–Whitney of every run (as _fit_with_spans), all runs in one searchsorted of
+    # complex keys (run, value), which compare run first
+    row_owner = np.repeat(np.arange(R), sizes)
+    row_start = np.concatenate([[0], np.cumsum(sizes)])
+    t_keys = row_owner + 1j * t
+    cp_owner, cp_index = _groups(n)
+    at = knot_start[cp_owner] + cp_index
+    first = np.searchsorted(t_keys, cp_owner + 1j * K[at], side="right") - row_start[cp_owner]
+    first[cp_index == 0] = 0
+    last = np.searchsorted(t_keys, cp_owner + 1j * K[at + p + 1], side="left") - row_start[cp_owner]
+    final = np.cumsum(n) - 1
+    last[final] = sizes
+    big = int(sizes.max()) + int(n.max()) + 1
+    offset = cp_owner * big
+    matched = cp_index + np.maximum.accumulate(first - cp_index + offset) - offset
+    sw = np.bincount(cp_owner, weights=matched >= last, minlength=R) == 0
+    # every row's span (find_span: no span is empty where it is used) and basis values
+    span = np.searchsorted(k_owner + 1j * K, t_keys, side="right") - 1
+    np.maximum(span, knot_start[row_owner] + p, out=span)
+    np.minimum(span, knot_start[row_owner] + n[row_owner] - 1, out=span)
+    _, values = basis_functions(K, p, t, span=span)
+    beta = values[0]
+    col = span - knot_start[row_owner] - p
+    for j in range(R):
+        i = int(run[j])
+        a, b = row_start[j], row_start[j + 1]
+        pts = pts_all[starts[i]: starts[i] + (b - a)]
+        t_run = t[a:b].copy()
+        if empty[j]:  # fit_curve leaves such a count to its search
+            results[i] = _fit_or_none(pts, p, spacing_m, max_noise_gain)
+            continue
+        if sw[j]:
+            m = b - a
+            collocation = np.zeros((m, int(n[j])))
+            collocation[_arange(m)[:, None], col[a:b, None] + _arange(p + 1)] = beta[a:b]
+            phi = least_squares_operator(collocation, max_noise_gain)
+            if phi is not None:
+                knots = K[knot_start[j]: knot_start[j + 1]].copy()
+                results[i] = FitResult(curve=BSplineCurve.unchecked(phi @ pts, knots, p), phi=phi, params=t_run)
+                continue
+        # the most spans fail: fit_curve's search from one fewer
+        try:
+            results[i] = _fit_from(pts, t_run, t_run, np.ones(b - a, dtype=np.intp), p, int(most[j]) - 1,
+                                   int(most[j]), max_noise_gain, _DIRECT_TRIES - 1)
+        except FitError:
+            results[i] = None
+
+
+def _fit_or_none(pts: np.ndarray, degree: int, spacing_m: float, max_noise_gain: float | None) -> FitResult | None:
+    """:func:`fit_curve`, None where it raises FitError."""
+    try:
+        return fit_curve(pts, degree, spacing_m, max_noise_gain=max_noise_gain)
+    except FitError:
+        return None
 
 
 def _distinct_sorted(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
