@@ -129,7 +129,7 @@ def least_squares_operator(collocation: np.ndarray, max_noise_gain: float | None
     if m < n:
         return None
     q, r = _qr_reduced(collocation)
-    diag = np.abs(np.diag(r))
+    diag = np.abs(r.diagonal())
     if diag.min() <= _RANK_TOLERANCE * diag.max():
         return None
     phi = _solve_upper(r, q.T)
@@ -451,7 +451,7 @@ def _surely_too_noisy(beta, cp, weight, cp_start, cp_owner, p, max_noise_gain, t
     c = tested[:, None, None]
     row = c + low                                         # band row of each entry
     inside = (row >= cp_start[owner][:, None, None]) & (c + low + gap < cp_start[owner + 1][:, None, None]) & ~zero
-    M = np.where(inside, band[np.clip(row, 0, N - 1) * (p + 1) + gap], 0.0)
+    M = np.where(inside, band.take(row * (p + 1) + gap, mode="clip"), 0.0)   # outside: any entry, masked
     w = 2 * h + 1
     diag = np.arange(w)
     M[:, diag, diag] = np.where(inside[:, diag, diag], M[:, diag, diag] * (1.0 + _SCREEN_SHIFT), 1.0)
