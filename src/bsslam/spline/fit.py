@@ -223,67 +223,108 @@ def iter_span_counts(t: np.ndarray, distinct: np.ndarray, multiplicity: np.ndarr
     """
     if most < 1:
         return
-    p = degree
-    lay = _candidate_layout(most, p)
+    yield from (int(c) for c in _surviving_counts([(t, distinct, multiplicity, most)], degree, max_noise_gain)[0])
+
+
+def _surviving_counts(runs: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]], p: int,
+                      max_noise_gain: float | None) -> list[np.ndarray]:
+    """:func:`iter_span_counts` of several runs at once (the candidates of all runs in one
+    pass, as those of one run are): for each run ``(t, distinct, multiplicity, most)``
+    with most ≥ 1, its surviving span counts, descending, as an int array."""
+    R = len(runs)
+    lays = [_candidate_layout(most, p) for _, _, _, most in runs]
+    if R == 1:
+        lay = lays[0]
+    else:
+        lay = _Layout.concatenate(lays)
     spans, n, k, N = lay.spans, lay.n, lay.k, lay.n_cp
-    start, length, end = float(t[0]), float(t[-1] - t[0]), float(t[-1])
-    # all knot vectors, bit for bit as clamped_knots_with_spans (+ the exact end) builds them
-    K = start + length * lay.ratio
-    K[lay.clamped_start] = start
-    K[lay.clamped_end] = end
-    if not np.all(K[lay.domain_next] > K[lay.domain_knot]):
-        # a span rounded to nothing (a length of a few ulps of the start): decide by the
-        # basis values themselves, as satisfies_schoenberg_whitney does
-        yield from _iter_span_counts_by_basis(t, distinct, multiplicity, degree, most, max_noise_gain)
-        return
-    d = distinct.shape[0]
+    # each knot's and control point's run, and the runs' data, one after another
+    t0 = [float(t[0]) for t, _, _, _ in runs]
+    t1 = [float(t[-1]) for t, _, _, _ in runs]
+    lengths = [float(t[-1] - t[0]) for t, _, _, _ in runs]
+    if R == 1:
+        # all knot vectors, bit for bit as clamped_knots_with_spans (+ the exact end)
+        K = t0[0] + lengths[0] * lay.ratio
+        K[lay.clamped_start] = t0[0]
+        K[lay.clamped_end] = t1[0]
+        distinct = runs[0][1]
+        multiplicity = runs[0][2]
+    else:
+        knot_run = lay.run[lay.knot_owner]
+        K = np.array(t0)[knot_run] + np.array(lengths)[knot_run] * lay.ratio
+        K[lay.clamped_start] = np.array(t0)[knot_run[lay.clamped_start]]
+        K[lay.clamped_end] = np.array(t1)[knot_run[lay.clamped_end]]
+        distinct = np.concatenate([r[1] for r in runs])
+        multiplicity = np.concatenate([r[2] for r in runs])
+    degenerate = K[lay.domain_next] <= K[lay.domain_knot]
+    if degenerate.any():
+        # a span rounded to nothing (a length of a few ulps of the start): those runs are
+        # decided by the basis values themselves, as satisfies_schoenberg_whitney does
+        bad = set(lay.run[lay.knot_owner[lay.domain_knot[degenerate]]].tolist())
+        good = [r for r in range(R) if r not in bad]
+        out: list[np.ndarray] = [np.zeros(0, dtype=np.intp)] * R
+        for r in bad:
+            t, dist, mult, most = runs[r]
+            out[r] = np.array(list(_iter_span_counts_by_basis(t, dist, mult, p, most, max_noise_gain)), dtype=np.intp)
+        if good:
+            for r, counts in zip(good, _surviving_counts([runs[r] for r in good], p, max_noise_gain)):
+                out[r] = counts
+        return out
+    d_run = np.array([r[1].shape[0] for r in runs])
+    D = int(d_run.max()) + 1                              # datum slots per candidate
+    d_start = np.concatenate([[0], np.cumsum(d_run)])
+    cand_run = lay.run                                    # (k,) run of each candidate
     # first and last datum of every basis function's support, all candidates at once:
     # data before each knot (to find spans later), data up to each support's first knot
-    before = np.searchsorted(distinct, K, side="left")
-    first = np.searchsorted(distinct, K[lay.cp_knot], side="right")
+    if R == 1:
+        before = np.searchsorted(distinct, K, side="left")
+        first = np.searchsorted(distinct, K[lay.cp_knot], side="right")
+    else:  # complex keys (run, value) compare run first: one searchsorted for all runs
+        keys = np.repeat(np.arange(R), d_run) + 1j * distinct
+        knot_run = cand_run[lay.knot_owner]
+        before = np.searchsorted(keys, knot_run + 1j * K, side="left") - d_start[knot_run]
+        cp_knot_run = knot_run[lay.cp_knot]
+        first = np.searchsorted(keys, cp_knot_run + 1j * K[lay.cp_knot], side="right") - d_start[cp_knot_run]
     first[lay.first_cp] = 0
     last = before[lay.cp_knot + p + 1] - 1
-    last[lay.last_cp] = d - 1
+    last[lay.last_cp] = d_run[cand_run[lay.cp_owner[lay.last_cp]]] - 1
     # Schoenberg–Whitney per candidate: the greedy match of satisfies_schoenberg_whitney, a
     # running maximum per candidate (each candidate offset above everything before it)
-    big = d + int(n[0]) + 1
+    big = D + int(n.max()) + 1
     offset = lay.cp_owner * big
     matched = lay.cp_index + np.maximum.accumulate(first - lay.cp_index + offset) - offset
     ok = np.bincount(lay.cp_owner, weights=matched > last, minlength=k) == 0
-    if max_noise_gain is None or not ok.any():
-        yield from (int(c) for c in spans[ok])
-        return
     # Control points with few data in their support are the ones a noise gain can wreck:
     # screen those (of the well-posed counts) at once; the exact test decides the rest.
     tested = np.flatnonzero(ok[lay.cp_owner] & (last - first < _SCREEN_FEW_DATA))
-    if tested.shape[0] == 0:
-        yield from (int(c) for c in spans[ok])
-        return
-    # the data of the supports of each tested control point and of its neighbours in its
-    # screen block (all of them: a block from fewer data would bound too high), once per
-    # candidate: a difference array over (candidate, datum)
-    owner_t = lay.cp_owner[tested]
-    h = _SCREEN_HALF_WIDTH
-    lo_cp = np.maximum(tested - h, lay.cp_start[owner_t])
-    hi_cp = np.minimum(tested + h, lay.cp_start[owner_t + 1] - 1)
-    flat = owner_t * (d + 1)
-    marks = (np.bincount(flat + first[lo_cp], minlength=k * (d + 1))
-             - np.bincount(flat + last[hi_cp] + 1, minlength=k * (d + 1)))
-    pair = np.flatnonzero(np.cumsum(marks))
-    q_owner, row = np.divmod(pair, d + 1)
-    tq = distinct[row]
-    # span of each of those data under its candidate, as find_span finds it (the domain
-    # knots increase strictly): the knots at or before datum j are those with at most j
-    # data before them, counted by an integer searchsorted within the candidate's knots
-    keys = lay.knot_owner * (d + 1) + before
-    span = np.searchsorted(keys, pair, side="right") - 1
-    np.maximum(span, lay.knot_start[q_owner] + p, out=span)
-    np.minimum(span, lay.knot_start[q_owner] + n[q_owner] - 1, out=span)
-    _, values = basis_functions(K, p, tq, span=span)
-    cp = (span - lay.knot_start[q_owner] + lay.cp_start[q_owner] - p)[:, None] + np.arange(p + 1)
-    noisy = _surely_too_noisy(values[0], cp, multiplicity[row], lay.cp_start, lay.cp_owner, p, max_noise_gain,
-                              tested)
-    yield from (int(c) for c in spans[ok & ~noisy])
+    if max_noise_gain is not None and tested.shape[0] > 0:
+        # the data of the supports of each tested control point and of its neighbours in
+        # its screen block (all of them: a block from fewer data would bound too high), once
+        # per candidate: a difference array over (candidate, datum slot)
+        owner_t = lay.cp_owner[tested]
+        h = _SCREEN_HALF_WIDTH
+        lo_cp = np.maximum(tested - h, lay.cp_start[owner_t])
+        hi_cp = np.minimum(tested + h, lay.cp_start[owner_t + 1] - 1)
+        flat = owner_t * D
+        marks = (np.bincount(flat + first[lo_cp], minlength=k * D)
+                 - np.bincount(flat + last[hi_cp] + 1, minlength=k * D))
+        pair = np.flatnonzero(np.cumsum(marks))
+        q_owner, row = np.divmod(pair, D)
+        datum = d_start[cand_run[q_owner]] + row
+        # span of each of those data under its candidate, as find_span finds it (the domain
+        # knots increase strictly): the knots at or before datum j are those with at most j
+        # data before them, counted by an integer searchsorted within the candidate's knots
+        span = np.searchsorted(lay.knot_owner * D + before, pair, side="right") - 1
+        np.maximum(span, lay.knot_start[q_owner] + p, out=span)
+        np.minimum(span, lay.knot_start[q_owner] + n[q_owner] - 1, out=span)
+        _, values = basis_functions(K, p, distinct[datum], span=span)
+        cp = (span - lay.knot_start[q_owner] + lay.cp_start[q_owner] - p)[:, None] + np.arange(p + 1)
+        ok &= ~_surely_too_noisy(values[0], cp, multiplicity[datum], lay.cp_start, lay.cp_owner, p,
+                                 max_noise_gain, tested)
+    if R == 1:
+        return [spans[ok]]
+    return [spans[lay.cand_start[r]: lay.cand_start[r + 1]][ok[lay.cand_start[r]: lay.cand_start[r + 1]]]
+            for r in range(R)]
 
 
 class _Layout:
@@ -300,6 +341,8 @@ class _Layout:
             first knot and control point of each candidate.
         cp_owner, cp_index: (n_cp,) candidate and local index of each control point;
         cp_knot: its first support knot; first_cp, last_cp: the end control points.
+        run: (k,) run of each candidate, cand_start: (R+1,) first candidate of each run
+            (one run, unless :meth:`concatenate` built it).
     """
 
     def __init__(self, most: int, p: int) -> None:
@@ -319,9 +362,44 @@ class _Layout:
         self.cp_knot = self.knot_start[self.cp_owner] + self.cp_index
         self.first_cp = self.cp_start[:-1]
         self.last_cp = self.cp_start[1:] - 1
-        for name, value in vars(self).items():
+        self.run = np.zeros(self.k, dtype=np.intp)          # one run: see concatenate
+        self.cand_start = np.array([0, self.k])
+        for value in vars(self).values():
             if isinstance(value, np.ndarray):
                 value.setflags(write=False)
+
+    @classmethod
+    def concatenate(cls, lays: list[_Layout]) -> _Layout:
+        """The layouts of several runs' candidates, one after another (indices shifted);
+        ``run`` (k,) tells each candidate's run, ``cand_start`` (R+1,) each run's first."""
+        out = object.__new__(cls)
+        ks = np.array([lay.k for lay in lays])
+        knots = np.array([lay.knot_start[-1] for lay in lays])
+        cps = np.array([lay.n_cp for lay in lays])
+        k0 = np.concatenate([[0], np.cumsum(ks)])
+        g0 = np.concatenate([[0], np.cumsum(knots)])
+        c0 = np.concatenate([[0], np.cumsum(cps)])
+        cat = np.concatenate
+        out.spans = cat([lay.spans for lay in lays])
+        out.n = cat([lay.n for lay in lays])
+        out.k = int(k0[-1])
+        out.n_cp = int(c0[-1])
+        out.ratio = cat([lay.ratio for lay in lays])
+        out.knot_owner = cat([lay.knot_owner + k for lay, k in zip(lays, k0)])
+        out.clamped_start = cat([lay.clamped_start + g for lay, g in zip(lays, g0)])
+        out.clamped_end = cat([lay.clamped_end + g for lay, g in zip(lays, g0)])
+        out.domain_knot = cat([lay.domain_knot + g for lay, g in zip(lays, g0)])
+        out.domain_next = out.domain_knot + 1
+        out.knot_start = cat([[0], *[lay.knot_start[1:] + g for lay, g in zip(lays, g0)]])
+        out.cp_start = cat([[0], *[lay.cp_start[1:] + c for lay, c in zip(lays, c0)]])
+        out.cp_owner = cat([lay.cp_owner + k for lay, k in zip(lays, k0)])
+        out.cp_index = cat([lay.cp_index for lay in lays])
+        out.cp_knot = cat([lay.cp_knot + g for lay, g in zip(lays, g0)])
+        out.first_cp = out.cp_start[:-1]
+        out.last_cp = out.cp_start[1:] - 1
+        out.run = np.repeat(np.arange(len(lays)), ks)
+        out.cand_start = k0
+        return out
 
 
 @functools.lru_cache(maxsize=512)
@@ -539,24 +617,34 @@ def _fit_from(pts: np.ndarray, t: np.ndarray, distinct: np.ndarray, multiplicity
         if fit is not _REJECTED:  # undecided: the search decides this count and the rest
             break
         most -= 1
-    length = float(t[-1] - t[0])
-    for spans in iter_span_counts(t, distinct, multiplicity, degree, most, max_noise_gain):
-        fit = _fit_with_spans(pts, t, distinct, spans, degree, max_noise_gain)
+    fit = _first_fit(pts, t, distinct, iter_span_counts(t, distinct, multiplicity, degree, most, max_noise_gain),
+                     degree, max_noise_gain)
+    if fit is not None:
+        return fit
+    raise FitError(
+        f"no degree-{degree} spline with 1..{max(most_spans, 1)} spans fits these {pts.shape[0]} points "
+        "(Schoenberg–Whitney fails: too few distinct points)")
+
+
+def _first_fit(pts: np.ndarray, t: np.ndarray, distinct: np.ndarray, counts, degree: int,
+               max_noise_gain: float | None) -> FitResult | None:
+    """The fit on the first of the span ``counts`` (descending, from the search) that the
+    exact test accepts, or None."""
+    for spans in counts:
+        fit = _fit_with_spans(pts, t, distinct, int(spans), degree, max_noise_gain)
         if isinstance(fit, FitResult):
             return fit
         if fit is _REJECTED:
             continue
         # a knot vector with an empty span: find_span's clamping decides the spans
-        knots = clamped_knots_with_spans(length, spans, degree, start=float(t[0]))
+        knots = clamped_knots_with_spans(float(t[-1] - t[0]), int(spans), degree, start=float(t[0]))
         knots[-degree - 1 :] = t[-1]  # exactly the last parameter, not start + length
         phi = least_squares_operator(collocation_matrix(knots, degree, t), max_noise_gain)
         if phi is None:
             continue
         curve = BSplineCurve.unchecked(phi @ pts, knots, degree)
         return FitResult(curve=curve, phi=phi, params=t)
-    raise FitError(
-        f"no degree-{degree} spline with 1..{max(most_spans, 1)} spans fits these {pts.shape[0]} points "
-        "(Schoenberg–Whitney fails: too few distinct points)")
+    return None
 
 
 def fit_runs(points: np.ndarray, starts: np.ndarray, ends: np.ndarray, degree: int, spacing_m: float, *,
@@ -663,6 +751,7 @@ def _fit_usual_runs(pts_all, t, run, starts, sizes, lengths, most, p, spacing_m,
     _, values = basis_functions(K, p, t, span=span)
     beta = values[0]
     col = span - knot_start[row_owner] - p
+    failed = []
     for j in range(R):
         i = int(run[j])
         a, b = row_start[j], row_start[j + 1]
@@ -680,12 +769,23 @@ def _fit_usual_runs(pts_all, t, run, starts, sizes, lengths, most, p, spacing_m,
                 knots = K[knot_start[j]: knot_start[j + 1]].copy()
                 results[i] = FitResult(curve=BSplineCurve.unchecked(phi @ pts, knots, p), phi=phi, params=t_run)
                 continue
-        # the most spans fail: fit_curve's search from one fewer
-        try:
-            results[i] = _fit_from(pts, t_run, t_run, np.ones(b - a, dtype=np.intp), p, int(most[j]) - 1,
-                                   int(most[j]), max_noise_gain, _DIRECT_TRIES - 1)
-        except FitError:
-            results[i] = None
+        # the most spans fail: fit_curve's search from one fewer, for all such runs at once
+        failed.append((i, pts, t_run, int(most[j]) - 1))
+    if _DIRECT_TRIES != 1:  # pragma: no cover - fit_curve's further direct tries first
+        for i, pts, t_run, fewer in failed:
+            try:
+                results[i] = _fit_from(pts, t_run, t_run, np.ones(t_run.shape[0], dtype=np.intp), p, fewer,
+                                       fewer + 1, max_noise_gain, _DIRECT_TRIES - 1)
+            except FitError:
+                results[i] = None
+        return
+    failed = [f for f in failed if f[3] >= 1]          # no count left: FitError (None)
+    if not failed:
+        return
+    searched = _surviving_counts([(t_run, t_run, _ones(t_run.shape[0]), fewer) for _, _, t_run, fewer in failed],
+                                 p, max_noise_gain)
+    for (i, pts, t_run, _), counts in zip(failed, searched):
+        results[i] = _first_fit(pts, t_run, t_run, counts, p, max_noise_gain)
 
 
 def _fit_or_none(pts: np.ndarray, degree: int, spacing_m: float, max_noise_gain: float | None) -> FitResult | None:
@@ -721,6 +821,14 @@ def _interior_ratios(spans: int) -> np.ndarray:
     ratios = np.arange(1, spans) / spans
     ratios.setflags(write=False)
     return ratios
+
+
+@functools.lru_cache(maxsize=1024)
+def _ones(n: int) -> np.ndarray:
+    """``np.ones(n, dtype=np.intp)``, read-only and cached: multiplicities of distinct data."""
+    ones = np.ones(n, dtype=np.intp)
+    ones.setflags(write=False)
+    return ones
 
 
 @functools.lru_cache(maxsize=1024)
