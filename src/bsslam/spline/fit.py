@@ -133,7 +133,7 @@ def least_squares_operator(collocation: np.ndarray, max_noise_gain: float | None
     if diag.min() <= _RANK_TOLERANCE * diag.max():
         return None
     phi = _solve_upper(r, q.T)
-    if max_noise_gain is not None and np.max(np.einsum("ij,ij->i", phi, phi)) > max_noise_gain ** 2:
+    if max_noise_gain is not None and np.einsum("ij,ij->i", phi, phi).max() > max_noise_gain ** 2:
         return None
     return phi
 
