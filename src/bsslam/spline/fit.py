@@ -410,8 +410,9 @@ def _candidate_layout(most: int, p: int) -> _Layout:
 
 # Control points whose support holds fewer distinct data than this are screened for their
 # noise gain (the others are left to the exact test). Chosen on recorded simulated-corridor
-# and Intel fits: 6 and 8 reject about as many counts, 6 tests fewer control points.
-_SCREEN_FEW_DATA = 6
+# and Intel fits: 4, 6 and 8 leave the same number of exact tests (3 a few more), and 4
+# tests the fewest control points.
+_SCREEN_FEW_DATA = 4
 
 
 def _iter_span_counts_by_basis(t: np.ndarray, distinct: np.ndarray, multiplicity: np.ndarray, degree: int,
