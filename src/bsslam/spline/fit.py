@@ -232,11 +232,7 @@ def _surviving_counts(runs: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]]
     pass, as those of one run are): for each run ``(t, distinct, multiplicity, most)``
     with most ≥ 1, its surviving span counts, descending, as an int array."""
     R = len(runs)
-    lays = [_candidate_layout(most, p) for _, _, _, most in runs]
-    if R == 1:
-        lay = lays[0]
-    else:
-        lay = _Layout.concatenate(lays)
+    lay = _candidate_layout(runs[0][3], p) if R == 1 else _runs_layout(tuple(r[3] for r in runs), p)
     spans, n, k, N = lay.spans, lay.n, lay.k, lay.n_cp
     # each knot's and control point's run, and the runs' data, one after another
     t0 = [float(t[0]) for t, _, _, _ in runs]
@@ -399,6 +395,9 @@ class _Layout:
         out.last_cp = out.cp_start[1:] - 1
         out.run = np.repeat(np.arange(len(lays)), ks)
         out.cand_start = k0
+        for value in vars(out).values():
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)
         return out
 
 
@@ -406,6 +405,13 @@ class _Layout:
 def _candidate_layout(most: int, p: int) -> _Layout:
     """The cached :class:`_Layout` of spans ``most … 1`` at degree p."""
     return _Layout(most, p)
+
+
+@functools.lru_cache(maxsize=256)
+def _runs_layout(mosts: tuple[int, ...], p: int) -> _Layout:
+    """The cached :class:`_Layout` of several runs' candidates (spans ``most … 1`` each):
+    consecutive scans often repeat the same most spans."""
+    return _Layout.concatenate([_candidate_layout(most, p) for most in mosts])
 
 
 # Control points whose support holds fewer distinct data than this are screened for their
