@@ -10,8 +10,9 @@ import numpy as np
 from bsslam.config import SLAMConfig
 from bsslam.errors import FitError
 from bsslam.scan.laser_scan import LaserScan
-from bsslam.scan.segment import beams_to_points, segment_points_counted, valid_beams
-from bsslam.spline import BSplineCurve, fit_curve
+from bsslam.scan.segment import beams_to_points, segment_bounds_counted, valid_beams
+from bsslam.spline import BSplineCurve
+from bsslam.spline.fit import fit_runs
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,20 +66,21 @@ def extract_splines(scan: LaserScan, config: SLAMConfig) -> ScanFeatures:
     angles = scan.angles[beam_indices]
     ranges = scan.ranges[beam_indices]
     points = beams_to_points(angles, ranges)
-    segments, segment_counts = segment_points_counted(points, config.segmentation, beam_index=beam_indices)
+    starts, ends, segment_counts = segment_bounds_counted(points, config.segmentation, beam_index=beam_indices)
     counts.update(segment_counts)
+    # all segments' fits at once (they share degree and spacing): the same fits as
+    # fit_curve on each segment's points
+    fits = fit_runs(points, starts, ends, config.spline.degree, config.spline.knot_spacing_m,
+                    max_noise_gain=config.spline.max_noise_gain)
     splines = []
     fit_failed = 0
-    for rows in segments:  # a handful of segments per scan; the fit itself is vectorised
-        run = points[rows]
-        try:
-            fit = fit_curve(run, config.spline.degree, config.spline.knot_spacing_m,
-                            max_noise_gain=config.spline.max_noise_gain)
-        except FitError:
+    for start, end, fit in zip(starts.tolist(), ends.tolist(), fits):
+        if fit is None:  # fit_curve raised FitError
             fit_failed += 1
             continue
+        rows = slice(start, end + 1)
         splines.append(ObservedSpline(curve=fit.curve, phi=fit.phi, beam_indices=beam_indices[rows],
-                                      params=fit.params, points=run, ranges=ranges[rows],
+                                      params=fit.params, points=points[rows], ranges=ranges[rows],
                                       angles=angles[rows]))
     counts["fit_failed"] = fit_failed
     counts["splines"] = len(splines)

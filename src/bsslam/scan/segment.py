@@ -71,7 +71,10 @@ def beams_to_points(angles: np.ndarray, ranges: np.ndarray) -> np.ndarray:
     ranges = np.asarray(ranges, dtype=float)
     if angles.shape != ranges.shape or angles.ndim != 1:
         raise InputError(f"angles {angles.shape} and ranges {ranges.shape} must be equal 1-D arrays")
-    return np.column_stack((ranges * np.cos(angles), ranges * np.sin(angles)))
+    points = np.empty((angles.shape[0], 2))
+    np.multiply(ranges, np.cos(angles), out=points[:, 0])
+    np.multiply(ranges, np.sin(angles), out=points[:, 1])
+    return points
 
 
 def segment_points(points: np.ndarray, config: SegmentationConfig, *, beam_index: np.ndarray | None = None,
@@ -124,6 +127,15 @@ def segment_points_counted(points: np.ndarray, config: SegmentationConfig, *,
                            window_m: float = DEFAULT_WINDOW_M) -> tuple[list[np.ndarray], dict[str, int]]:
     """:func:`segment_points`, also returning counts: ``gap_cuts``, ``shape_cuts`` (direction
     or spacing), ``segments`` kept and ``rejected_segments`` (too few points or too short)."""
+    starts, ends, counts = segment_bounds_counted(points, config, beam_index=beam_index, window_m=window_m)
+    return [np.arange(s, e + 1) for s, e in zip(starts.tolist(), ends.tolist())], counts
+
+
+def segment_bounds_counted(points: np.ndarray, config: SegmentationConfig, *,
+                           beam_index: np.ndarray | None = None,
+                           window_m: float = DEFAULT_WINDOW_M) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+    """:func:`segment_points_counted` with each segment as its first and last row: (k,),
+    (k,) int arrays (segment j is ``points[starts[j] : ends[j] + 1]``), and the counts."""
     points = np.asarray(points, dtype=float)
     if points.ndim != 2 or points.shape[1] != 2:
         raise InputError(f"points must be (m, 2), got {points.shape}")
@@ -132,17 +144,18 @@ def segment_points_counted(points: np.ndarray, config: SegmentationConfig, *,
     m = points.shape[0]
     counts = {"gap_cuts": 0, "shape_cuts": 0, "segments": 0, "rejected_segments": 0}
     if m == 0:
-        return [], counts
+        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp), counts
     if beam_index is None:
         steps = np.arange(m, dtype=float)
     else:
         steps = np.asarray(beam_index, dtype=float)
-        if steps.shape != (m,) or np.any(np.diff(steps) <= 0):
+        if steps.shape != (m,) or np.any(steps[1:] <= steps[:-1]):
             raise InputError(f"beam_index must be (m,) = ({m},) and strictly increasing")
 
-    edges = np.diff(points, axis=0)                      # (m-1, 2): edge k joins points k, k+1
+    edges = points[1:] - points[:-1]                     # (m-1, 2): edge k joins points k, k+1
     edge_len = np.hypot(edges[:, 0], edges[:, 1])         # (m-1,)
-    path = np.concatenate(([0.0], np.cumsum(edge_len)))  # (m,) path length from point 0 (m)
+    path = np.zeros(m)                                    # (m,) path length from point 0 (m)
+    np.cumsum(edge_len, out=path[1:])
 
     gap_cut = edge_len > config.max_gap_m                 # (m-1,)
     shape_cut = _shape_cuts(points, edge_len, path, steps, gap_cut, config, window_m)
@@ -157,8 +170,7 @@ def segment_points_counted(points: np.ndarray, config: SegmentationConfig, *,
     keep = (ends - starts + 1 >= config.min_points) & (path[ends] - path[starts] >= config.min_length_m)
     counts["segments"] = int(np.count_nonzero(keep))
     counts["rejected_segments"] = int(keep.shape[0] - counts["segments"])
-    segments = [np.arange(s, e + 1) for s, e in zip(starts[keep], ends[keep])]
-    return segments, counts
+    return starts[keep], ends[keep], counts
 
 
 def _shape_cuts(points: np.ndarray, edge_len: np.ndarray, path: np.ndarray, steps: np.ndarray,
@@ -276,7 +288,12 @@ def _prefix_moments(points: np.ndarray) -> np.ndarray:
     centred = points - points.mean(axis=0)
     x, y = centred[:, 0], centred[:, 1]
     prefix = np.zeros((points.shape[0] + 1, 5))
-    np.cumsum(np.column_stack((x, y, x * x, x * y, y * y)), axis=0, out=prefix[1:])
+    terms = np.empty((points.shape[0], 5))
+    terms[:, 0], terms[:, 1] = x, y
+    np.multiply(x, x, out=terms[:, 2])
+    np.multiply(x, y, out=terms[:, 3])
+    np.multiply(y, y, out=terms[:, 4])
+    np.cumsum(terms, axis=0, out=prefix[1:])
     return prefix
 
 
@@ -290,7 +307,9 @@ def _principal_axes(moments: np.ndarray, first: np.ndarray, last: np.ndarray, al
     cxy = sums[:, 3] / n - mx * my
     cyy = sums[:, 4] / n - my * my
     theta = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)
-    axis = np.column_stack((np.cos(theta), np.sin(theta)))
+    axis = np.empty((theta.shape[0], 2))
+    np.cos(theta, out=axis[:, 0])
+    np.sin(theta, out=axis[:, 1])
     sign = np.where(np.einsum("ij,ij->i", axis, along) < 0, -1.0, 1.0)
     return axis * sign[:, None]
 

@@ -1,0 +1,94 @@
+"""The noise-gain screen of fit_curve's span search: a lower bound, never above the exact
+squared noise gain of the control point it bounds."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from bsslam.spline import collocation_matrix
+from bsslam.spline.basis import basis_functions
+from bsslam.spline.fit import _distinct_sorted, _surely_too_noisy, iter_span_counts, least_squares_operator
+from bsslam.spline.knots import clamped_knots_with_spans, span_count
+
+SETTINGS = settings(max_examples=60, deadline=None)
+
+
+def _clustered_params(rng, m):
+    steps = rng.exponential(0.05, m - 1) * np.where(rng.random(m - 1) < 0.15, 20.0, 1.0)
+    steps[rng.random(m - 1) < 0.05] = 0.0
+    return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+@SETTINGS
+@given(degree=st.integers(1, 4), m=st.integers(8, 80), spans=st.integers(1, 20), seed=st.integers(0, 2**32 - 1))
+def test_screen_never_rejects_below_the_exact_gain(degree, m, spans, seed):
+    """For every control point alone, the screen rejects a limit only if the exact squared
+    gain (A⁻¹)_cc exceeds it: at a limit just below the exact gain it may reject, at a limit
+    just above it must not."""
+    t = _clustered_params(np.random.default_rng(seed), m)
+    distinct, mult, _ = _distinct_sorted(t)
+    knots = clamped_knots_with_spans(float(t[-1]), spans, degree)
+    knots[-degree - 1:] = t[-1]
+    B = collocation_matrix(knots, degree, t)
+    n = B.shape[1]
+    A = B.T @ B
+    if np.linalg.cond(A) > 1e10:
+        return
+    exact = np.diag(np.linalg.inv(A))
+    span, values = basis_functions(knots, degree, distinct)
+    cp = span[:, None] - degree + np.arange(degree + 1)
+    cp_start = np.array([0, n])
+    cp_owner = np.zeros(n, dtype=int)
+    for c in range(n):
+        gain = np.sqrt(exact[c]) * (1.0 + 1e-9)
+        assert not _surely_too_noisy(values[0], cp, mult, cp_start, cp_owner, degree, gain, np.array([c]))[0]
+
+
+@SETTINGS
+@given(degree=st.integers(1, 4), m=st.integers(6, 120), spacing=st.floats(0.02, 1.0),
+       gain=st.sampled_from([1.5, 3.0, 10.0]), seed=st.integers(0, 2**32 - 1))
+def test_search_keeps_every_count_the_exact_test_accepts(degree, m, spacing, gain, seed):
+    """Dense data with sparse stretches (as far walls give): the counts the search drops
+    all fail the exact test."""
+    t = _clustered_params(np.random.default_rng(seed), m)
+    distinct, mult, _ = _distinct_sorted(t)
+    most = min(span_count(float(t[-1]), spacing), distinct.shape[0] - degree)
+    kept = set(iter_span_counts(t, distinct, mult, degree, most, gain))
+    for spans in range(most, 0, -1):
+        if spans in kept:
+            continue
+        knots = clamped_knots_with_spans(float(t[-1]), spans, degree)
+        knots[-degree - 1:] = t[-1]
+        assert least_squares_operator(collocation_matrix(knots, degree, t), gain) is None
+
+
+@SETTINGS
+@given(degree=st.integers(1, 4), sizes=st.lists(st.integers(6, 60), min_size=1, max_size=5),
+       spacing=st.floats(0.01, 0.5), gain=st.sampled_from([None, 1.5, 3.0, 10.0]),
+       tiny=st.booleans(), seed=st.integers(0, 2**32 - 1))
+def test_several_runs_at_once_give_each_runs_counts(degree, sizes, spacing, gain, tiny, seed):
+    """The search over several runs in one pass keeps, for each run, exactly the counts
+    its own search keeps (also when a run's knot vectors have empty spans)."""
+    from bsslam.spline.fit import _surviving_counts
+
+    rng = np.random.default_rng(seed)
+    runs = []
+    for r, m in enumerate(sizes):
+        if tiny and r == 0:   # parameters a few ulps apart, far from 0: empty spans
+            t = 1.0 + np.arange(m) * np.spacing(1.0)
+        else:
+            t = _clustered_params(rng, m) + rng.uniform(-1, 1)
+        distinct, mult, _ = _distinct_sorted(t)
+        length = float(t[-1] - t[0])
+        if not length > 0:
+            continue
+        most = min(span_count(length, spacing if not (tiny and r == 0) else length / 50), distinct.shape[0] - degree)
+        if most >= 1:
+            runs.append((t, distinct, mult, most))
+    if not runs:
+        return
+    got = _surviving_counts(runs, degree, gain)
+    for (t, distinct, mult, most), counts in zip(runs, got):
+        assert counts.tolist() == list(iter_span_counts(t, distinct, mult, degree, most, gain))
