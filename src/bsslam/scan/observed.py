@@ -4,6 +4,7 @@ beam to its spline parameter that the filter's observation model needs (spec §3
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -12,6 +13,7 @@ from bsslam.errors import FitError
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.scan.segment import beams_to_points, segment_bounds_counted, valid_beams
 from bsslam.spline import BSplineCurve
+from bsslam.spline.batch import CurveTable, curve_table
 from bsslam.spline.fit import fit_runs
 
 
@@ -52,6 +54,17 @@ class ScanFeatures:
 
     splines: list[ObservedSpline] = field(default_factory=list)
     counts: dict[str, int] = field(default_factory=dict)
+
+    # Built on first use and kept: the filter asks for them at every pass over the scan.
+    @cached_property
+    def curve_table(self) -> CurveTable:
+        """The splines' knot structure as one batch table (needs at least one spline)."""
+        return curve_table([o.curve.knots for o in self.splines], [o.curve.degree for o in self.splines])
+
+    @cached_property
+    def control_points(self) -> np.ndarray:
+        """(N, 2) the splines' control points stacked in table order (robot frame, m)."""
+        return np.vstack([o.curve.control_points for o in self.splines])
 
 
 def extract_splines(scan: LaserScan, config: SLAMConfig) -> ScanFeatures:

@@ -127,6 +127,8 @@ class SplineSLAM:
         self.steps = 0
         self._next_id = 0
         self._map: MapCurves | None = None  # batch table of the map splines, see _map_curves
+        self._map_added: list[SplineFeature] = []   # features added since it was built
+        self._features: ScanFeatures | None = None   # the current scan's
         self._gate = gate_threshold(self.config.observation.gate_probability)
         self._loose_gate = gate_threshold(1.0 - (1.0 - self.config.observation.gate_probability) / 100.0)
         self._build_map = True
@@ -231,21 +233,33 @@ class SplineSLAM:
         if features is None:
             features = extract_splines(scan, self.config)
         report.features = features
+        self._features = features
         report.scan_counts = dict(features.counts)
         report.observed_splines = len(features.splines)
         return features.splines
 
     def _map_curves(self) -> MapCurves | None:
         """The map splines' batch table, rebuilt only after a spline was added, extended or
-        removed (each of those calls :meth:`_map_changed`)."""
+        removed (:meth:`_map_grew`, :meth:`_map_changed`)."""
         if not self.features:
             return None
         if self._map is None:
             self._map = MapCurves(list(self.features.values()))
+            self._map_added.clear()
+        elif self._map_added:
+            self._map = self._map.with_added(self._map_added)
+            self._map_added.clear()
         return self._map
 
     def _map_changed(self) -> None:
+        """A spline was extended or removed: the table is built again."""
         self._map = None
+        self._map_added.clear()
+
+    def _map_grew(self, feature: SplineFeature) -> None:
+        """A spline was added (after all others, in ``features`` order): it joins the table."""
+        if self._map is not None:
+            self._map_added.append(feature)
 
     def _associate(self, observed: list[ObservedSpline], offset: np.ndarray) -> list[list[Match]]:
         cfg = self.config.association
@@ -261,8 +275,11 @@ class SplineSLAM:
         candidates = np.flatnonzero(dx * dx + dy * dy <= cfg.map_radius_m ** 2)
         if candidates.size == 0:
             return [[] for _ in observed]
-        table = curve_table([o.curve.knots for o in observed], [o.curve.degree for o in observed])
-        local = np.vstack([o.curve.control_points for o in observed])      # robot (laser) frame
+        if self._features is not None and observed is self._features.splines:
+            table, local = self._features.curve_table, self._features.control_points
+        else:   # a subset (re-association)
+            table = curve_table([o.curve.knots for o in observed], [o.curve.degree for o in observed])
+            local = np.vstack([o.curve.control_points for o in observed])      # robot (laser) frame
         c, s = np.cos(lp[2]), np.sin(lp[2])
         world = table.with_control_points(local @ np.array([[c, s], [-s, c]]) + lp[:2])
         # Grow both thresholds by the uncertainty of each observed spline's far end
@@ -494,7 +511,7 @@ class SplineSLAM:
             idx = self.state.append_dependent(block.mean, block.cols, block.J, block.noise(self._range_variance))
             feature.idx_x, feature.idx_y = idx[:n], idx[n:]
         self.features[feature.id] = feature
-        self._map_changed()
+        self._map_grew(feature)
         return True
 
     def _extend_feature(self, f: SplineFeature, obs: ObservedSpline, match: Match, side: str,

@@ -72,6 +72,7 @@ class JointState:
         self._G = np.zeros((max_pending, max_pending))
         self._a = 0
         self._reg = np.full(capacity, -1, dtype=np.intp)   # basis column equal to base[:, j], or −1
+        self._pose_pending: np.ndarray | None = None       # B[POSE] G, read several times a scan
         self.size = 3
         self._x[:3] = np.asarray(pose, dtype=float)
         C = np.asarray(pose_covariance, dtype=float)
@@ -116,6 +117,10 @@ class JointState:
     def _pending_rows(self, rows: np.ndarray) -> np.ndarray:
         """(r, a) B[rows] G: the pending term's rows are this times Bᵀ."""
         a = self._a
+        if rows is POSE:
+            if self._pose_pending is None:
+                self._pose_pending = self._B[POSE, :a] @ self._G[:a, :a]
+            return self._pose_pending
         return self._B[rows, :a] @ self._G[:a, :a]
 
     def rows(self, rows: np.ndarray) -> np.ndarray:
@@ -174,6 +179,7 @@ class JointState:
         C[self._reg[cols], np.arange(cols.shape[0])] += 1.0
         E = C @ W
         self._G[:a, :a] += E @ E.T
+        self._pose_pending = None
 
     def subtract_low_rank(self, Z: np.ndarray) -> None:
         """P ← P − Z Zᵀ for a given Z (n, k): folds the pending term first, then one O(n²k)
@@ -193,6 +199,7 @@ class JointState:
             self._G[:a, :a] = 0.0
             self._reg[:n] = -1
             self._a = 0
+            self._pose_pending = None
 
     def transform(self, idx: np.ndarray, T: np.ndarray) -> None:
         """x[idx] ← T x[idx] and P ← A P Aᵀ, A the identity with T on the block ``idx``.
@@ -218,6 +225,7 @@ class JointState:
             B = self._B[:, : self._a]
             B[idx] = T @ B[idx]
         self._reg[idx] = -1
+        self._pose_pending = None
 
     # -- growth --------------------------------------------------------------------------
     def _reserve(self, new_size: int) -> None:

@@ -290,6 +290,28 @@ def curve_table(knots: list[np.ndarray], degrees: list[int] | np.ndarray) -> Cur
     return table
 
 
+def concat_tables(a: CurveTable, b: CurveTable) -> CurveTable:
+    """The table of a's curves followed by b's, field for field as :func:`curve_table` would
+    build it from all their knot vectors (tables of one padded degree only)."""
+    if a.p != b.p:
+        raise SplineError(f"cannot concatenate tables of padded degrees {a.p} and {b.p}")
+    C, N, S = a.n_curves, int(a.cp_start[-1]), a.piece_lo.shape[0]
+    table = CurveTable(
+        degree=np.concatenate([a.degree, b.degree]), p=a.p,
+        cp_start=np.concatenate([a.cp_start, b.cp_start[1:] + N]),
+        piece_start=np.concatenate([a.piece_start, b.piece_start[1:] + S]),
+        lo=np.concatenate([a.lo, b.lo]), hi=np.concatenate([a.hi, b.hi]),
+        piece_lo=np.concatenate([a.piece_lo, b.piece_lo]), width=np.concatenate([a.width, b.width]),
+        piece_curve=np.concatenate([a.piece_curve, b.piece_curve + C]),
+        window=np.concatenate([a.window, b.window + N]), real=np.concatenate([a.real, b.real]),
+        power_basis=np.concatenate([a.power_basis, b.power_basis]),
+        keys=np.concatenate([a.keys, b.keys + C]),
+        break_start=np.concatenate([a.break_start, b.break_start[1:] + a.keys.shape[0]]))
+    object.__setattr__(table, "piece_keys", np.concatenate([a.piece_keys, b.piece_keys + C]))
+    object.__setattr__(table, "last_piece", np.concatenate([a.last_piece, b.last_piece + S]))
+    return table
+
+
 def _piece_coeffs(power_basis: np.ndarray, window_points: np.ndarray) -> np.ndarray:
     """(S, p+1, 2) Taylor coefficients Σ_r power_basis[s, k, r] · window_points[s, r] of
     pieces from their (S, p+1, p+1) power-basis matrices and (S, p+1, 2) control points.
