@@ -1,0 +1,44 @@
+"""concat_tables gives, field for field and bit for bit, the table curve_table builds from all
+the knot vectors at once (the filter grows its map table this way)."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from bsslam.errors import SplineError
+from bsslam.spline import fit_curve
+from bsslam.spline.batch import concat_tables, curve_table
+
+
+def _knots(rng, count, degree):
+    out = []
+    for i in range(count):
+        pts = np.cumsum(rng.normal(size=(20 + 7 * i, 2)) * 0.2, axis=0)
+        out.append(fit_curve(pts, degree, 0.8).curve.knots)
+    return out
+
+
+@pytest.mark.parametrize("degree", [1, 2, 3])
+@pytest.mark.parametrize("split", [1, 3, 5])
+def test_concatenation_equals_building_all_at_once(degree, split):
+    knots = _knots(np.random.default_rng(degree * 10 + split), 6, degree)
+    full = curve_table(knots, [degree] * 6)
+    joined = concat_tables(curve_table(knots[:split], [degree] * split),
+                           curve_table(knots[split:], [degree] * (6 - split)))
+    for f in dataclasses.fields(full):
+        np.testing.assert_array_equal(getattr(joined, f.name), getattr(full, f.name), err_msg=f.name)
+    for name in ("piece_keys", "last_piece"):
+        np.testing.assert_array_equal(getattr(joined, name), getattr(full, name), err_msg=name)
+    # and the joined table answers queries as the full one does
+    cp = np.random.default_rng(0).normal(size=(int(full.cp_start[-1]), 2))
+    curve = np.repeat(np.arange(6), 5)
+    t = full.lo[curve] + (full.hi[curve] - full.lo[curve]) * np.tile(np.linspace(0, 1, 5), 6)
+    np.testing.assert_array_equal(joined.with_control_points(cp).evaluate(curve, t),
+                                  full.with_control_points(cp).evaluate(curve, t))
+
+
+def test_tables_of_different_degrees_are_refused():
+    rng = np.random.default_rng(3)
+    with pytest.raises(SplineError):
+        concat_tables(curve_table(_knots(rng, 1, 2), [2]), curve_table(_knots(rng, 1, 3), [3]))
