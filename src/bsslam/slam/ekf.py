@@ -101,8 +101,8 @@ class StackedGain:
         # (n, c): the only columns of P read (read only)
         self.P_c = P.get(cols) if isinstance(P, CovarianceColumns) else P[:, cols]
         S = (H_c @ self.P_c[cols]) @ H_c.T
-        S[np.diag_indices_from(S)] += range_variance
-        self.S_diag = np.diag(S).copy()
+        S.flat[:: S.shape[0] + 1] += range_variance     # the diagonal, without index arrays
+        self.S_diag = S.diagonal().copy()
         # LAPACK directly: the scipy.linalg front ends cost more than these small solves
         L, info = dpotrf(S, lower=1, clean=1)
         if info != 0:  # pragma: no cover - S ≥ R > 0 in exact arithmetic
