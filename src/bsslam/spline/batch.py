@@ -290,6 +290,17 @@ def curve_table(knots: list[np.ndarray], degrees: list[int] | np.ndarray) -> Cur
     return table
 
 
+def _first_per_group(key: np.ndarray, group: np.ndarray) -> np.ndarray:
+    """For (k,) keys in (k,) groups (k ≥ 1): the index of each group's smallest key, groups
+    in increasing order. The sort is stable, so ties go to the earlier entry."""
+    order = np.lexsort((key, group))
+    sorted_group = group.take(order)
+    first = np.empty(order.shape, dtype=bool)
+    first[0] = True
+    np.not_equal(sorted_group[1:], sorted_group[:-1], out=first[1:])
+    return order[first]
+
+
 def concat_tables(a: CurveTable, b: CurveTable) -> CurveTable:
     """The table of a's curves followed by b's, field for field as :func:`curve_table` would
     build it from all their knot vectors (tables of one padded degree only)."""
@@ -598,13 +609,7 @@ def _ray_global_search(batch: CurveBatch, rays: _Rays, max_range: float, samples
     if pair.size == 0:
         return ok, out
     owner = ray.take(pair)
-    # Nearest root of every ray: sort by (ray, range) and keep each ray's first.
-    order = np.lexsort((xt, owner))
-    sorted_owner = owner.take(order)
-    first = np.empty(order.shape, dtype=bool)
-    first[0] = True
-    np.not_equal(sorted_owner[1:], sorted_owner[:-1], out=first[1:])
-    best = order[first]
+    best = _first_per_group(xt, owner)    # the nearest root of every ray
     hit_rays = owner.take(best)
     ok[hit_rays] = True
     best_pair = pair.take(best)
@@ -717,14 +722,7 @@ def closest_points_batch(batch: CurveBatch, curve: np.ndarray, queries: np.ndarr
             t_start = np.concatenate([t_start, t_s])
             owner = np.concatenate([owner, unguessed[owner_s]])
     t, d2 = _closest_newton(batch, curve.take(owner), q.take(owner, axis=0), t_start)
-    # each query's best start: the first of its group after sorting by (query, d2); the
-    # sort is stable, so ties go to the earlier start
-    order = np.lexsort((d2, owner))
-    sorted_owner = owner.take(order)
-    first = np.empty(order.shape, dtype=bool)
-    first[0] = True
-    np.not_equal(sorted_owner[1:], sorted_owner[:-1], out=first[1:])
-    best = order[first]
+    best = _first_per_group(d2, owner)    # each query's best start
     t_best = t.take(best)
     points = np.ascontiguousarray(_evaluate_points(batch, curve, t_best).T)
     return t_best, points, np.sqrt(d2.take(best))
