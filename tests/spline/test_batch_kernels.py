@@ -9,8 +9,8 @@ from hypothesis import strategies as st
 from spline_cases import curves, wall_curves
 
 from bsslam.spline import intersect as one_curve
-from bsslam.spline.batch import (_horner_rows, _refine_brackets_rows, closest_points_batch, curve_table,
-                                 intersect_rays_batch)
+from bsslam.spline.batch import closest_points_batch, curve_table, intersect_rays_batch
+from bsslam.spline.pieces import horner_rows
 
 SETTINGS = settings(max_examples=30, deadline=None)
 
@@ -119,15 +119,22 @@ def test_closest_paths_agree(cs, seed):
 
 
 @settings(max_examples=60, deadline=None)
-@given(degree=st.integers(1, 5), seed=st.integers(0, 2**32 - 1))
-def test_bracket_refinement_is_intersects(degree, seed):
-    """The batch's copy of the global search's root refinement, step for step."""
+@given(degree=st.integers(0, 5), seed=st.integers(0, 2**32 - 1))
+def test_horner_rows_and_bracket_refinement_against_numpy(degree, seed):
+    """The global search's polynomial rows and root refinement (shared by the one-curve and
+    the batched search) against numpy's polynomial evaluation."""
     rng = np.random.default_rng(seed)
     coeffs = rng.normal(size=(50, degree + 1))
     u = np.linspace(0.0, 2.0, 9)
-    y = one_curve._horner(coeffs, np.broadcast_to(u, (50, 9)))
-    _assert_same(_horner_rows(coeffs.T[:, :, None], np.broadcast_to(u, (50, 9))), y)
+    y = horner_rows(coeffs.T[:, :, None], np.broadcast_to(u, (50, 9)))
+    oracle = np.polynomial.polynomial.polyval(u, coeffs.T)                  # (50, 9)
+    np.testing.assert_allclose(y, oracle, rtol=1e-12, atol=1e-12)
     pair, j = np.nonzero((y[:, :-1] > 0) != (y[:, 1:] > 0))
+    if pair.size == 0:
+        return
     a, b = u[j], u[j + 1]
-    _assert_same(_refine_brackets_rows(np.ascontiguousarray(coeffs[pair].T), a, b),
-                 one_curve._refine_brackets(coeffs[pair], a, b))
+    root = one_curve._refine_brackets(np.ascontiguousarray(coeffs[pair].T), a, b)
+    assert np.all((root >= a) & (root <= b))
+    scale = np.sum(np.abs(coeffs[pair]) * 2.0 ** np.arange(degree + 1), axis=1)
+    residual = np.abs(np.polynomial.polynomial.polyval(root, coeffs[pair].T, tensor=False))
+    assert np.all(residual <= 1e-12 * scale), residual.max()

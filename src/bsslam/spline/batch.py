@@ -44,8 +44,8 @@ from bsslam.spline.closest import MAX_SAMPLES_PER_SPAN
 from bsslam.spline.closest import _MAX_NEWTON as _CLOSEST_MAX_NEWTON
 from bsslam.spline.closest import _STEP_TOLERANCE as _CLOSEST_STEP_TOLERANCE
 from bsslam.spline.intersect import _MAX_NEWTON as _RAY_MAX_NEWTON
-from bsslam.spline.intersect import _MAX_REFINE as _RAY_MAX_REFINE
 from bsslam.spline.intersect import _ROOT_TOLERANCE_M, _STEP_TOLERANCE, RayHits
+from bsslam.spline.intersect import beam_frame_polynomials, first_per_group, nearest_crossings
 from bsslam.spline.pieces import horner_with_derivatives
 
 
@@ -288,17 +288,6 @@ def curve_table(knots: list[np.ndarray], degrees: list[int] | np.ndarray) -> Cur
     object.__setattr__(table, "piece_keys", owner + 1j * piece_lo)
     object.__setattr__(table, "last_piece", last)
     return table
-
-
-def _first_per_group(key: np.ndarray, group: np.ndarray) -> np.ndarray:
-    """For (k,) keys in (k,) groups (k ≥ 1): the index of each group's smallest key, groups
-    in increasing order. The sort is stable, so ties go to the earlier entry."""
-    order = np.lexsort((key, group))
-    sorted_group = group.take(order)
-    first = np.empty(order.shape, dtype=bool)
-    first[0] = True
-    np.not_equal(sorted_group[1:], sorted_group[:-1], out=first[1:])
-    return order[first]
 
 
 def concat_tables(a: CurveTable, b: CurveTable) -> CurveTable:
@@ -549,9 +538,8 @@ def _ray_global_search(batch: CurveBatch, rays: _Rays, max_range: float, samples
     pairs: convex-hull culling, sampling, bracketed Newton, nearest root per ray.
     Returns ok (k,) and the rows t, range, x̃', ỹ' (4, k), NaN where no hit.
 
-    The steps and the arithmetic of :func:`~bsslam.spline.intersect.nearest_crossings`
-    (results bit-identical), on polynomials laid out (p+1, K) so that every Horner row is
-    a contiguous (K,) array, with plain ufuncs instead of np.where / broadcast copies."""
+    The candidate pairs come from the curves' table; the crossings are found by the same
+    :func:`~bsslam.spline.intersect.nearest_crossings` as for one curve."""
     table = batch.table
     k = rays.curve.shape[0]
     # (ray, piece of its curve) pairs, ray by ray: rays sharing a curve repeat its pieces
@@ -572,112 +560,15 @@ def _ray_global_search(batch: CurveBatch, rays: _Rays, max_range: float, samples
     keep = keep.nonzero()[0]
     ray, piece = ray.take(keep), piece.take(keep)
     out = np.full((4, k), np.nan)
-    ok = np.zeros(k, dtype=bool)
     if ray.size == 0:
-        return ok, out
-
-    # beam-frame polynomials (p+1, K), as beam_frame_polynomials forms them
-    cos, sin = rays.cos.take(ray), rays.sin.take(ray)
-    ox, oy = rays.origin_of(ray)
-    coeffs = batch.coeffs_t.take(piece, axis=2)                     # (p+1, 2, K)
-    cx = cos * coeffs[:, 0] + sin * coeffs[:, 1]
-    cy = cos * coeffs[:, 1] - sin * coeffs[:, 0]
-    cx[0] -= cos * ox + sin * oy
-    cy[0] -= cos * oy - sin * ox
-
-    # sign changes of ỹ between samples (and exact zeros)
-    u = table.width.take(piece)[:, None] * _unit_grid(samples_per_span)   # (K, samples+1)
-    y = _horner_rows(cy[:, :, None], u)
-    positive = y > 0
-    pair, j = (positive[:, :-1] != positive[:, 1:]).nonzero()
-    zero_pair, zero_j = (y == 0).nonzero()
-    if zero_pair.size:
-        pair = np.concatenate([pair, zero_pair])
-        a = np.concatenate([u[pair[: j.size], j], u[zero_pair, zero_j]])
-        b = np.concatenate([u[pair[: j.size], j + 1], u[zero_pair, zero_j]])
-    else:
-        a, b = u[pair, j], u[pair, j + 1]
-    cy_pairs = cy.take(pair, axis=1)
-    root = _refine_brackets_rows(cy_pairs, a, b)
-
-    cx_pairs = cx.take(pair, axis=1)
-    xt = _horner_rows(cx_pairs, root)
-    keep = xt > 0
-    keep &= xt <= max_range
-    keep = keep.nonzero()[0]
-    pair, root, xt = pair.take(keep), root.take(keep), xt.take(keep)
-    if pair.size == 0:
-        return ok, out
-    owner = ray.take(pair)
-    best = _first_per_group(xt, owner)    # the nearest root of every ray
-    hit_rays = owner.take(best)
-    ok[hit_rays] = True
-    best_pair = pair.take(best)
-    root = root.take(best)
-    powers = np.arange(1, cx.shape[0], dtype=float)[:, None]
-    out[0, hit_rays] = table.piece_lo.take(piece.take(best_pair)) + root
-    out[1, hit_rays] = xt.take(best)
-    out[2, hit_rays] = _horner_rows(cx.take(best_pair, axis=1)[1:] * powers, root)
-    out[3, hit_rays] = _horner_rows(cy.take(best_pair, axis=1)[1:] * powers, root)
+        return np.zeros(k, dtype=bool), out
+    cx, cy = beam_frame_polynomials(batch.coeffs_t.take(piece, axis=2), rays.cos.take(ray), rays.sin.take(ray),
+                                    *rays.origin_of(ray))
+    ok, hit_rays, best_pair, values = nearest_crossings(cx, cy, table.width.take(piece), ray, k, samples_per_span,
+                                                        max_range)
+    out[0, hit_rays] = table.piece_lo.take(piece.take(best_pair)) + values[0]
+    out[1:, hit_rays] = values[1:]
     return ok, out
-
-
-_UNIT_GRIDS: dict[int, np.ndarray] = {}
-
-
-def _unit_grid(samples: int) -> np.ndarray:
-    """np.linspace(0, 1, samples + 1), computed once per count."""
-    grid = _UNIT_GRIDS.get(samples)
-    if grid is None:
-        grid = _UNIT_GRIDS[samples] = np.linspace(0.0, 1.0, samples + 1)
-    return grid
-
-
-def _horner_rows(c: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Polynomials c (p+1, B, ...) in ascending powers at x (B, ...) -> (B, ...): the
-    operations of intersect._horner (from the top coefficient: multiply, add)."""
-    if c.shape[0] == 1:
-        return np.broadcast_to(c[0], np.broadcast_shapes(c.shape[1:], x.shape)).copy()
-    v = c[-1] * x
-    v += c[-2]
-    for i in range(c.shape[0] - 3, -1, -1):
-        v *= x
-        v += c[i]
-    return v
-
-
-def _refine_brackets_rows(c: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """A root of each polynomial c (p+1, B) inside its bracket [a, b] (sign change):
-    :func:`bsslam.spline.intersect._refine_brackets` step for step (Newton from the
-    midpoint, bisection when a step leaves the bracket, every pair iterated until all
-    have converged), with in-place updates instead of np.where."""
-    fa_positive = _horner_rows(c, a) > 0
-    x = 0.5 * (a + b)
-    a, b = a.copy(), b.copy()
-    derivative = c[1:] * np.arange(1, c.shape[0], dtype=float)[:, None]
-    n = x.shape[0]
-    for _ in range(_RAY_MAX_REFINE):
-        f = _horner_rows(c, x)
-        fp = _horner_rows(derivative, x)
-        same = (f > 0) == fa_positive
-        np.copyto(a, x, where=same)
-        np.copyto(b, x, where=~same)
-        step = f / fp
-        x_new = x - step                       # Newton, kept where it stays inside (a, b)
-        outside = ~((x_new > a) & (x_new < b))
-        np.copyto(x_new, 0.5 * (a + b), where=outside)
-        # converged to rounding: stay (a bisection step from a root would leave it)
-        tolerance = np.abs(x)
-        tolerance += 1.0
-        tolerance *= _STEP_TOLERANCE
-        at_root = np.abs(step) <= tolerance
-        at_root |= f == 0
-        np.copyto(x_new, x, where=at_root)
-        at_root |= x_new == x
-        x = x_new
-        if np.count_nonzero(at_root) == n:
-            break
-    return x
 
 
 # -- closest points --------------------------------------------------------------------------
@@ -722,7 +613,7 @@ def closest_points_batch(batch: CurveBatch, curve: np.ndarray, queries: np.ndarr
             t_start = np.concatenate([t_start, t_s])
             owner = np.concatenate([owner, unguessed[owner_s]])
     t, d2 = _closest_newton(batch, curve.take(owner), q.take(owner, axis=0), t_start)
-    best = _first_per_group(d2, owner)    # each query's best start
+    best = first_per_group(d2, owner)    # each query's best start
     t_best = t.take(best)
     points = np.ascontiguousarray(_evaluate_points(batch, curve, t_best).T)
     return t_best, points, np.sqrt(d2.take(best))

@@ -16,6 +16,7 @@ import numpy as np
 from bsslam.errors import SplineError
 from bsslam.spline.basis import as_parameters
 from bsslam.spline.curve import BSplineCurve
+from bsslam.spline.pieces import horner_rows
 
 _MAX_NEWTON = 12
 _MAX_REFINE = 60
@@ -187,7 +188,7 @@ def _global_search(curve: BSplineCurve, beams: _Beams, max_range: float, samples
     ray, piece = np.nonzero(straddles & reachable)
 
     # Beam-frame polynomial of each candidate (ray, span) pair, ascending powers of u.
-    cx, cy = beam_frame_polynomials(pieces.coeffs[piece], beams.cos[ray], beams.sin[ray],
+    cx, cy = beam_frame_polynomials(pieces.coeffs[piece].transpose(1, 2, 0), beams.cos[ray], beams.sin[ray],
                                     beams.ox[ray], beams.oy[ray])
 
     ok, rays, best_pair, values = nearest_crossings(cx, cy, pieces.widths[piece], ray, k,
@@ -200,13 +201,14 @@ def _global_search(curve: BSplineCurve, beams: _Beams, max_range: float, samples
 
 def beam_frame_polynomials(coeffs: np.ndarray, cos: np.ndarray, sin: np.ndarray, ox: np.ndarray,
                            oy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """World pieces (K, degree+1, 2) in ascending powers, moved into the frames of K beams
-    starting at (ox, oy) with direction (cos, sin): x̃ along each beam, ỹ across it (m)."""
-    c, s = cos[:, None], sin[:, None]
-    cx = c * coeffs[:, :, 0] + s * coeffs[:, :, 1]
-    cy = c * coeffs[:, :, 1] - s * coeffs[:, :, 0]
-    cx[:, 0] -= cos * ox + sin * oy
-    cy[:, 0] -= cos * oy - sin * ox
+    """World pieces (degree+1, 2, K) in ascending powers (the piece axis last), moved into
+    the frames of K beams starting at (ox, oy) with direction (cos, sin): (degree+1, K)
+    rows of x̃ along each beam and of ỹ across it (m). ``ox``, ``oy`` may be (1,), one
+    origin shared by all the beams."""
+    cx = cos * coeffs[:, 0] + sin * coeffs[:, 1]
+    cy = cos * coeffs[:, 1] - sin * coeffs[:, 0]
+    cx[0] -= cos * ox + sin * oy
+    cy[0] -= cos * oy - sin * ox
     return cx, cy
 
 
@@ -215,8 +217,9 @@ def nearest_crossings(cx: np.ndarray, cy: np.ndarray, width: np.ndarray, ray: np
     """Each ray's nearest forward crossing among candidate (ray, piece) pairs.
 
     Args:
-        cx, cy: (K, degree+1) ascending beam-frame polynomials of each pair's piece in the
-            local parameter u ∈ [0, width] (x along the beam, y across it; m).
+        cx, cy: (degree+1, K) ascending beam-frame polynomials of each pair's piece in the
+            local parameter u ∈ [0, width] (x along the beam, y across it; m), laid out
+            so that every Horner step works on a contiguous (K,) row.
         width: (K,) parameter length of each pair's piece (m).
         ray: (K,) ray of each pair, in 0 … k−1.
         samples_per_span: sign-change samples per piece.
@@ -227,75 +230,92 @@ def nearest_crossings(cx: np.ndarray, cy: np.ndarray, width: np.ndarray, ray: np
         best_pair: (h,) the pair of each one's nearest crossing; values: (4, h) its local
         parameter u, range, and dx̃/du, dỹ/du there.
     """
-    u = width[:, None] * np.linspace(0.0, 1.0, samples_per_span + 1)  # (K, samples+1)
-    y = _horner(cy, u)
+    u = width[:, None] * _unit_grid(samples_per_span)                    # (K, samples+1)
+    y = horner_rows(cy[:, :, None], u)
     positive = y > 0
-    pair, j = np.nonzero(positive[:, :-1] != positive[:, 1:])
-    zero_pair, zero_j = np.nonzero(y == 0)  # exact zeros are roots already
-    pair = np.concatenate([pair, zero_pair])
-    a = np.concatenate([u[pair[: j.size], j], u[zero_pair, zero_j]])
-    b = np.concatenate([u[pair[: j.size], j + 1], u[zero_pair, zero_j]])
-    root = _refine_brackets(cy[pair], a, b)
-
-    xt = _horner(cx[pair], root[:, None])[:, 0]
-    keep = (xt > 0) & (xt <= max_range)
-    pair, root, xt = pair[keep], root[keep], xt[keep]
-    owner = ray[pair]
-    # Nearest root of every ray: sort by (ray, range) and keep each ray's first.
-    order = np.lexsort((xt, owner))
-    _, first = np.unique(owner[order], return_index=True)
-    best = order[first]
-    rays = owner[best]
+    pair, j = (positive[:, :-1] != positive[:, 1:]).nonzero()
+    zero_pair, zero_j = (y == 0).nonzero()   # exact zeros are roots already
+    if zero_pair.size:
+        pair = np.concatenate([pair, zero_pair])
+        a = np.concatenate([u[pair[: j.size], j], u[zero_pair, zero_j]])
+        b = np.concatenate([u[pair[: j.size], j + 1], u[zero_pair, zero_j]])
+    else:
+        a, b = u[pair, j], u[pair, j + 1]
+    root = _refine_brackets(cy.take(pair, axis=1), a, b)
+    xt = horner_rows(cx.take(pair, axis=1), root)
+    keep = xt > 0
+    keep &= xt <= max_range
+    keep = keep.nonzero()[0]
+    pair, root, xt = pair.take(keep), root.take(keep), xt.take(keep)
     ok = np.zeros(k, dtype=bool)
+    if pair.size == 0:
+        return ok, pair, pair, np.empty((4, 0))
+    owner = ray.take(pair)
+    best = first_per_group(xt, owner)    # the nearest root of every ray
+    rays = owner.take(best)
     ok[rays] = True
-    best_pair = pair[best]
-    values = np.stack([root[best], xt[best], _horner_derivative(cx[best_pair], root[best]),
-                       _horner_derivative(cy[best_pair], root[best])])
+    best_pair = pair.take(best)
+    root = root.take(best)
+    powers = np.arange(1, cx.shape[0], dtype=float)[:, None]
+    values = np.stack([root, xt.take(best), horner_rows(cx.take(best_pair, axis=1)[1:] * powers, root),
+                       horner_rows(cy.take(best_pair, axis=1)[1:] * powers, root)])
     return ok, rays, best_pair, values
 
 
-def _horner(coeffs: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Polynomials (K, degree+1) ascending, at points (K, L) -> (K, L)."""
-    out = np.broadcast_to(coeffs[:, -1:], u.shape).copy()
-    for i in range(coeffs.shape[1] - 2, -1, -1):
-        out *= u
-        out += coeffs[:, i : i + 1]
-    return out
+def first_per_group(key: np.ndarray, group: np.ndarray) -> np.ndarray:
+    """For (k,) keys in (k,) groups (k ≥ 1): the index of each group's smallest key, groups
+    in increasing order. The sort is stable, so ties go to the earlier entry."""
+    order = np.lexsort((key, group))
+    sorted_group = group.take(order)
+    first = np.empty(order.shape, dtype=bool)
+    first[0] = True
+    np.not_equal(sorted_group[1:], sorted_group[:-1], out=first[1:])
+    return order[first]
 
 
-def _horner_derivative(coeffs: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """First derivative of polynomials (K, degree+1) ascending at points (K,) -> (K,)."""
-    powers = np.arange(1, coeffs.shape[1])
-    return _horner(coeffs[:, 1:] * powers, u[:, None])[:, 0]
+_UNIT_GRIDS: dict[int, np.ndarray] = {}
 
 
-def _refine_brackets(coeffs: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """A root of each polynomial (B, degree+1) inside its bracket [a, b] (sign change).
+def _unit_grid(samples: int) -> np.ndarray:
+    """np.linspace(0, 1, samples + 1), computed once per count."""
+    grid = _UNIT_GRIDS.get(samples)
+    if grid is None:
+        grid = _UNIT_GRIDS[samples] = np.linspace(0.0, 1.0, samples + 1)
+    return grid
+
+
+def _refine_brackets(c: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """A root of each polynomial c (degree+1, B) inside its bracket [a, b] (sign change).
 
     Newton from the bracket's midpoint; a step that leaves the bracket is replaced by
     bisection, and the bracket shrinks around the sign change every iteration, so the
-    iteration always converges.
+    iteration always converges. Every bracket is iterated until all have converged.
     """
-    fa_positive = _horner(coeffs, a[:, None])[:, 0] > 0
+    fa_positive = horner_rows(c, a) > 0
     x = 0.5 * (a + b)
     a, b = a.copy(), b.copy()
-    derivative = coeffs[:, 1:] * np.arange(1, coeffs.shape[1])
+    derivative = c[1:] * np.arange(1, c.shape[0], dtype=float)[:, None]
+    n = x.shape[0]
     for _ in range(_MAX_REFINE):
-        f = _horner(coeffs, x[:, None])[:, 0]
-        fp = _horner(derivative, x[:, None])[:, 0]
+        f = horner_rows(c, x)
+        fp = horner_rows(derivative, x)
         same = (f > 0) == fa_positive
-        a = np.where(same, x, a)
-        b = np.where(same, b, x)
+        np.copyto(a, x, where=same)
+        np.copyto(b, x, where=~same)
         with np.errstate(divide="ignore", invalid="ignore"):
             step = f / fp
-        newton = x - step
-        inside = (newton > a) & (newton < b)
-        x_new = np.where(inside, newton, 0.5 * (a + b))
-        # Converged to rounding: stay (a bisection step from a root would leave it).
-        at_root = (f == 0) | (np.abs(step) <= _STEP_TOLERANCE * (1.0 + np.abs(x)))
-        x_new = np.where(at_root, x, x_new)
-        converged = at_root | (x_new == x)
+        x_new = x - step                       # Newton, kept where it stays inside (a, b)
+        outside = ~((x_new > a) & (x_new < b))
+        np.copyto(x_new, 0.5 * (a + b), where=outside)
+        # converged to rounding: stay (a bisection step from a root would leave it)
+        tolerance = np.abs(x)
+        tolerance += 1.0
+        tolerance *= _STEP_TOLERANCE
+        at_root = np.abs(step) <= tolerance
+        at_root |= f == 0
+        np.copyto(x_new, x, where=at_root)
+        at_root |= x_new == x
         x = x_new
-        if np.all(converged):
+        if np.count_nonzero(at_root) == n:
             break
     return x

@@ -119,6 +119,19 @@ def horner_with_derivatives(coeffs: np.ndarray, u: np.ndarray, nder: int) -> np.
     return out
 
 
+def horner_rows(c: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Polynomials c (degree+1, B, ...) in ascending powers at x (B, ...) -> (B, ...), one
+    coefficient row per power: each Horner step works on whole contiguous rows."""
+    if c.shape[0] == 1:
+        return np.broadcast_to(c[0], np.broadcast_shapes(c.shape[1:], x.shape)).copy()
+    v = c[-1] * x
+    v += c[-2]
+    for i in range(c.shape[0] - 3, -1, -1):
+        v *= x
+        v += c[i]
+    return v
+
+
 def polynomial_pieces(control_points: np.ndarray, knots: np.ndarray, degree: int) -> PolynomialPieces:
     """Convert a B-spline curve to :class:`PolynomialPieces` (exact up to rounding).
 
