@@ -200,7 +200,7 @@ def _run(dataset, config, steps, progress, total, point_stride, slam, relocalize
         dof.append(report.nis_dof if report else 0)
         if report is not None:
             _add_report(totals, report)
-        if point_stride:
+        if point_stride and not config.relocalize:   # else the second pass draws them at its poses
             points.append(_scan_points(frame.scan, pose, frame.laser_offset, point_stride))
         progress(i + 1, total)
     if slam is None:
@@ -217,8 +217,7 @@ def _run(dataset, config, steps, progress, total, point_stride, slam, relocalize
         relocalized, reloc_points = relocalize(final_map, replay, stamps_arr, config, first_pose, first_cov,
                                                point_stride, relocalize_progress)
         relocalize_time = time.perf_counter() - t0
-        if point_stride:
-            points = reloc_points
+        points = reloc_points
     return RunResult(
         name=getattr(dataset, "name", "dataset"), estimate=estimate, relocalized=relocalized, odometry=odometry,
         frontend=frontend, ground_truth=dataset.ground_truth, map=final_map,

@@ -9,7 +9,6 @@ from functools import cached_property
 import numpy as np
 
 from bsslam.config import SLAMConfig
-from bsslam.errors import FitError
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.scan.segment import beams_to_points, segment_bounds_counted, valid_beams
 from bsslam.spline import BSplineCurve

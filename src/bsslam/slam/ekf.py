@@ -29,7 +29,7 @@ def innovation_variances(P: np.ndarray | CovarianceColumns, cols: np.ndarray, H_
                          range_variance: float) -> np.ndarray:
     """(m,) diagonal of S = H P Hᵀ + R, for per-beam gating (m²); ``P`` is the (n, n)
     covariance or its :class:`CovarianceColumns`."""
-    HP = H_c @ (P.block(cols) if isinstance(P, CovarianceColumns) else P[np.ix_(cols, cols)])
+    HP = H_c @ _columns_of(P).block(cols)
     return np.einsum("ij,ij->i", HP, H_c) + range_variance
 
 
@@ -99,7 +99,7 @@ class StackedGain:
                  range_variance: float):
         self.cols = cols
         # (n, c): the only columns of P read (read only)
-        self.P_c = P.get(cols) if isinstance(P, CovarianceColumns) else P[:, cols]
+        self.P_c = _columns_of(P).get(cols)
         S = (H_c @ self.P_c[cols]) @ H_c.T
         S.flat[:: S.shape[0] + 1] += range_variance     # the diagonal, without index arrays
         self.S_diag = S.diagonal().copy()
@@ -120,10 +120,8 @@ class StackedGain:
         """(m,) variances H P⁺ Hᵀ + R of beams linearised on ``cols`` under the posterior
         P⁺ = P − P Hᵀ S⁻¹ H P of this gain, without forming P⁺ beyond those columns.
         ``P`` is the prior (n, n) or its :class:`CovarianceColumns`."""
-        if isinstance(P, CovarianceColumns):
-            P_cg, P_cc = P.get(self.cols)[cols], P.block(cols)
-        else:
-            P_cg, P_cc = P[np.ix_(cols, self.cols)], P[np.ix_(cols, cols)]
+        P = _columns_of(P)
+        P_cg, P_cc = P.get(self.cols)[cols], P.block(cols)
         Z = P_cg @ self.Y.T
         P_post = P_cc - Z @ Z.T
         return np.einsum("ij,ij->i", H_c @ P_post, H_c) + range_variance
@@ -139,6 +137,11 @@ class StackedGain:
         # exactly known components (zero variance, e.g. a fixed start) stay 0; negative is broken
         if np.any(np.diag(state.pose_covariance) < -1e-12):
             raise FilterError("pose covariance lost positive definiteness in the update")
+
+
+def _columns_of(P: np.ndarray | CovarianceColumns) -> CovarianceColumns:
+    """``P`` itself when it is a :class:`CovarianceColumns` already, else its columns."""
+    return P if isinstance(P, CovarianceColumns) else CovarianceColumns(P)
 
 
 def _lower_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -150,7 +150,6 @@ class SplineSLAM:
             feature = SplineFeature(slam._new_id(), c.degree, c.knots.copy(),
                                     fixed_control_points=np.array(c.control_points, dtype=float))
             slam.features[feature.id] = feature
-        slam._map_changed()
         slam._build_map = False
         return slam
 
@@ -540,8 +539,8 @@ class SplineSLAM:
             return True
         block = extension_block(new_rows, n_old, f.idx_x, f.idx_y, curve.control_points, bp)
         new_idx = self.state.append_dependent(block.mean, block.cols, block.J, block.noise(self._range_variance))
-        self._transform_block(f.idx_x, ext.T)
-        self._transform_block(f.idx_y, ext.T)
+        self.state.transform(f.idx_x, ext.T)    # x[idx] ← T x[idx], P ← T P Tᵀ on that block
+        self.state.transform(f.idx_y, ext.T)
         new_x, new_y = new_idx[:m], new_idx[m:]
         if side == "right":
             f.idx_x, f.idx_y = np.concatenate([f.idx_x, new_x]), np.concatenate([f.idx_y, new_y])
@@ -550,10 +549,6 @@ class SplineSLAM:
         f.knots = ext.curve.knots.copy()
         self._map_changed()
         return True
-
-    def _transform_block(self, idx: np.ndarray, T: np.ndarray) -> None:
-        """x[idx] ← T x[idx] with P's rows and columns carried exactly: P ← T P Tᵀ on that block."""
-        self.state.transform(idx, T)
 
     def _prune(self) -> int:
         """Remove map splines never used in an update within ``prune_after_scans`` scans of

@@ -183,15 +183,6 @@ class JointState:
         self._G[:a, :a] += E @ E.T
         self._pose_pending = None
 
-    def subtract_low_rank(self, Z: np.ndarray) -> None:
-        """P ← P − Z Zᵀ for a given Z (n, k): folds the pending term first, then one O(n²k)
-        pass. The filter's updates use :meth:`subtract_column_update`."""
-        n, k = Z.shape
-        if n != self.size:
-            raise FilterError(f"low-rank update of {n} rows for a state of size {self.size}")
-        self.fold()
-        _subtract_outer(self.base, Z)
-
     def fold(self) -> None:
         """Fold the pending update into the base: base ← base − B G Bᵀ, basis emptied."""
         a, n = self._a, self.size
@@ -336,11 +327,6 @@ class JointState:
         mapping = np.full(n, -1)
         mapping[kept] = np.arange(m)
         return mapping
-
-    def symmetrize(self) -> None:
-        P = self.P
-        P += P.T
-        P *= 0.5
 
 
 def _subtract_outer(P: np.ndarray, D: np.ndarray, E: np.ndarray | None = None, block: int = FOLD_BLOCK) -> None:
