@@ -82,3 +82,21 @@ def dense_samples(curve: BSplineCurve, n: int = 200_001) -> tuple[np.ndarray, np
     """Brute-force reference: (n,) parameters and (n, 2) points evenly spaced in the domain."""
     t = np.linspace(*curve.domain, n)
     return t, curve.evaluate(t)
+
+
+def corners(curve: BSplineCurve) -> np.ndarray:
+    """Interior knots repeated degree times or more: where the curve is only C0 and its
+    tangent may jump (every interior knot of a polyline)."""
+    lo, hi = curve.domain
+    knots, counts = np.unique(curve.knots[(curve.knots > lo) & (curve.knots < hi)], return_counts=True)
+    return knots[counts >= curve.degree]
+
+
+def corner_between(curve: BSplineCurve, a: np.ndarray, b: np.ndarray, tol: float = 1e-3) -> np.ndarray:
+    """Whether a corner lies within ``tol`` of the parameter interval between a and b (m,),
+    elementwise (NaN ends count as no interval). Newton from a start on one side of a
+    corner may stop on either side, at a different local solution or a different best
+    iterate, so searches from a start and from a global sampling can disagree there."""
+    c = corners(curve)
+    lo, hi = np.fmin(a, b)[:, None], np.fmax(a, b)[:, None]
+    return ((c[None, :] >= lo - tol) & (c[None, :] <= hi + tol)).any(axis=1)
