@@ -6,6 +6,7 @@ import numpy as np
 from hypothesis import strategies as st
 
 from bsslam.spline import BSplineCurve, fit_curve
+from bsslam.spline.batch import CurveBatch, curve_table
 
 _GAP = st.floats(0.05, 3.0)
 
@@ -100,3 +101,14 @@ def corner_between(curve: BSplineCurve, a: np.ndarray, b: np.ndarray, tol: float
     c = corners(curve)
     lo, hi = np.fmin(a, b)[:, None], np.fmax(a, b)[:, None]
     return ((c[None, :] >= lo - tol) & (c[None, :] <= hi + tol)).any(axis=1)
+
+
+def batch_of(cs: list[BSplineCurve]) -> CurveBatch:
+    """The curves as one :class:`CurveBatch` (curve c of the batch is ``cs[c]``)."""
+    table = curve_table([c.knots for c in cs], [c.degree for c in cs])
+    return table.with_control_points(np.vstack([c.control_points for c in cs]))
+
+
+def params_in(cs: list[BSplineCurve], which: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One uniformly drawn parameter in the domain of curve ``which[j]``, for every j."""
+    return np.array([rng.uniform(*cs[c].domain) for c in which])

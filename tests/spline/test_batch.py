@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from spline_cases import corner_between, curves, wall_curves
+from spline_cases import batch_of, corner_between, curves, params_in, wall_curves
 
 from bsslam.errors import SplineError
 from bsslam.spline import BSplineCurve, basis_functions, clamped_knots, closest_point, intersect_rays
-from bsslam.spline.batch import closest_points_batch, curve_table, intersect_rays_batch
+from bsslam.spline.batch import closest_points_batch, intersect_rays_batch
 from bsslam.spline.knots import clamped_knots_with_spans
 
 SETTINGS = settings(max_examples=40, deadline=None)
@@ -20,22 +20,13 @@ SETTINGS = settings(max_examples=40, deadline=None)
 GRAZING_TAN = np.tan(np.radians(87.0))
 
 
-def _batch(cs):
-    table = curve_table([c.knots for c in cs], [c.degree for c in cs])
-    return table.with_control_points(np.vstack([c.control_points for c in cs]))
-
-
-def _params(cs, which, rng):
-    return np.array([rng.uniform(*cs[c].domain) for c in which])
-
-
 @SETTINGS
 @given(cs=st.lists(curves(), min_size=1, max_size=5), seed=st.integers(0, 2**32 - 1))
 def test_evaluate_and_basis_match_each_curve(cs, seed):
     rng = np.random.default_rng(seed)
-    batch = _batch(cs)
+    batch = batch_of(cs)
     which = rng.integers(0, len(cs), 60)
-    t = _params(cs, which, rng)
+    t = params_in(cs, which, rng)
     # the domain ends and out-of-domain parameters (clamped) too
     t[:len(cs)] = [cs[c].domain[1] for c in which[:len(cs)]]
     t[len(cs):2 * len(cs)] = [cs[c].domain[0] - 1.0 for c in which[len(cs):2 * len(cs)]]
@@ -73,11 +64,11 @@ def _compare_hits(one, batched):
        max_range=st.sampled_from([np.inf, 6.0]))
 def test_ray_intersection_matches_each_curve(cs, seed, max_range):
     rng = np.random.default_rng(seed)
-    batch = _batch(cs)
+    batch = batch_of(cs)
     origin = rng.uniform(-4.0, 4.0, 2)
     which = rng.integers(0, len(cs), 80)
     angles = rng.uniform(-np.pi, np.pi, 80)
-    guess = _params(cs, which, rng)
+    guess = params_in(cs, which, rng)
     guess[::5] = np.nan  # no guess: the global search
     for t0 in (None, guess):
         hits = intersect_rays_batch(batch, which, origin, angles, t0=t0, max_range=max_range)
@@ -97,10 +88,10 @@ def _take(hits, sel):
 @given(cs=st.lists(curves(), min_size=1, max_size=5), seed=st.integers(0, 2**32 - 1))
 def test_closest_points_match_each_curve(cs, seed):
     rng = np.random.default_rng(seed)
-    batch = _batch(cs)
+    batch = batch_of(cs)
     which = rng.integers(0, len(cs), 40)
     queries = rng.uniform(-8.0, 8.0, (40, 2))
-    guess = _params(cs, which, rng)
+    guess = params_in(cs, which, rng)
     guess[::3] = np.nan
     for t0 in (None, guess):
         t, points, distance = closest_points_batch(batch, which, queries, t0=t0)
@@ -121,7 +112,7 @@ def test_closest_points_match_each_curve(cs, seed):
 
 def test_bad_inputs_raise():
     curve = BSplineCurve(np.array([[0.0, 0.0], [1.0, 0.5], [2.0, 0.0], [3.0, 1.0]]), clamped_knots(3.0, 3.0, 3), 3)
-    batch = _batch([curve])
+    batch = batch_of([curve])
     with pytest.raises(SplineError):
         batch.table.with_control_points(np.zeros((3, 2)))
     with pytest.raises(SplineError):
@@ -134,7 +125,7 @@ def test_extreme_control_points_brute_force():
     rng = np.random.default_rng(11)
     cs = [BSplineCurve(rng.uniform(-4, 4, (k, 2)), clamped_knots_with_spans(1.0, k - d, d), d)
           for k, d in ((3, 2), (6, 3), (5, 4), (8, 1))]
-    batch = _batch(cs)
+    batch = batch_of(cs)
     point = np.array([0.5, -0.3])
     curves = np.array([3, 0, 2])
     for farthest in (False, True):

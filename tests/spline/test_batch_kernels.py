@@ -6,22 +6,13 @@ from __future__ import annotations
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from spline_cases import curves, wall_curves
+from spline_cases import batch_of, curves, params_in, wall_curves
 
 from bsslam.spline import intersect as one_curve
-from bsslam.spline.batch import closest_points_batch, curve_table, intersect_rays_batch
+from bsslam.spline.batch import closest_points_batch, intersect_rays_batch
 from bsslam.spline.pieces import horner_rows
 
 SETTINGS = settings(max_examples=30, deadline=None)
-
-
-def _batch(cs):
-    table = curve_table([c.knots for c in cs], [c.degree for c in cs])
-    return table.with_control_points(np.vstack([c.control_points for c in cs]))
-
-
-def _params(cs, which, rng):
-    return np.array([rng.uniform(*cs[c].domain) for c in which])
 
 
 def _assert_same(a, b):
@@ -32,14 +23,14 @@ def _assert_same(a, b):
 @given(cs=st.lists(curves(), min_size=1, max_size=5), seed=st.integers(0, 2**32 - 1))
 def test_table_keys_and_locate_against_each_curves_breaks(cs, seed):
     rng = np.random.default_rng(seed)
-    table = _batch(cs).table
+    table = batch_of(cs).table
     # the documented break keys: every curve's piece starts, then its end
     breaks = np.insert(table.piece_lo, table.piece_start[1:], table.piece_lo[table.last_piece]
                        + table.width[table.last_piece])
     _assert_same(table.keys, np.repeat(np.arange(len(cs)), np.diff(table.piece_start) + 1) + 1j * breaks)
     _assert_same(table.piece_keys, table.piece_curve + 1j * table.piece_lo)
     which = rng.integers(0, len(cs), 50)
-    t = _params(cs, which, rng)
+    t = params_in(cs, which, rng)
     t[:5] = [cs[c].domain[1] for c in which[:5]]           # the domain end: last piece
     t[5:10] = [cs[c].domain[0] - 1.0 for c in which[5:10]]  # clamped
     t[10:13] = np.inf
@@ -62,7 +53,7 @@ def test_table_keys_and_locate_against_each_curves_breaks(cs, seed):
 @given(cs=st.lists(curves(), min_size=2, max_size=5), seed=st.integers(0, 2**32 - 1))
 def test_evaluate_subset_batches_and_derivative_path(cs, seed):
     rng = np.random.default_rng(seed)
-    full = _batch(cs)
+    full = batch_of(cs)
     table = full.table
     chosen = rng.choice(len(cs), size=rng.integers(1, len(cs) + 1), replace=False)
     part = table.with_control_points(full.control_points, np.concatenate([chosen, chosen[:1]]))
@@ -71,7 +62,7 @@ def test_evaluate_subset_batches_and_derivative_path(cs, seed):
     assert np.all(np.isnan(part.coeffs[~mine]))
     _assert_same(part.coeffs_t, np.ascontiguousarray(part.coeffs.transpose(1, 2, 0)))
     which = rng.choice(chosen, 40)
-    t = _params(cs, which, rng)
+    t = params_in(cs, which, rng)
     t[:3] = -np.inf
     t[3:5] = np.nan
     points = part.evaluate(which, t)
@@ -85,11 +76,11 @@ def test_evaluate_subset_batches_and_derivative_path(cs, seed):
 @given(cs=st.lists(wall_curves(), min_size=1, max_size=4), seed=st.integers(0, 2**32 - 1))
 def test_ray_paths_agree(cs, seed):
     rng = np.random.default_rng(seed)
-    batch = _batch(cs)
+    batch = batch_of(cs)
     origin = rng.uniform(-4.0, 4.0, 2)
     which = rng.integers(0, len(cs), 60)
     angles = rng.uniform(-np.pi, np.pi, 60)
-    guess = _params(cs, which, rng)
+    guess = params_in(cs, which, rng)
     shared = intersect_rays_batch(batch, which, origin, angles, t0=guess)
     per_ray = intersect_rays_batch(batch, which, np.tile(origin, (60, 1)), angles, t0=guess)
     for field in ("t", "range", "r", "hit"):
@@ -108,7 +99,7 @@ def test_ray_paths_agree(cs, seed):
 @given(cs=st.lists(curves(), min_size=1, max_size=5), seed=st.integers(0, 2**32 - 1))
 def test_closest_paths_agree(cs, seed):
     rng = np.random.default_rng(seed)
-    batch = _batch(cs)
+    batch = batch_of(cs)
     which = rng.integers(0, len(cs), 30)
     queries = rng.uniform(-8.0, 8.0, (30, 2))
     plain = closest_points_batch(batch, which, queries)

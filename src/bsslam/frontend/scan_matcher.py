@@ -37,7 +37,6 @@ from bsslam.errors import InputError
 from bsslam.config import FrontendConfig
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.se2 import compose
-from bsslam.trajectory import wrap_angle
 
 def _wrap(a: float) -> float:
     """:func:`~bsslam.trajectory.wrap_angle` of one float (rad), the same arithmetic without

@@ -233,7 +233,7 @@ def _surviving_counts(runs: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]]
     with most ≥ 1, its surviving span counts, descending, as an int array."""
     R = len(runs)
     lay = _candidate_layout(runs[0][3], p) if R == 1 else _runs_layout(tuple(r[3] for r in runs), p)
-    spans, n, k, N = lay.spans, lay.n, lay.k, lay.n_cp
+    spans, n, k = lay.spans, lay.n, lay.k
     # each knot's and control point's run, and the runs' data, one after another
     t0 = [float(t[0]) for t, _, _, _ in runs]
     t1 = [float(t[-1]) for t, _, _, _ in runs]
