@@ -16,10 +16,11 @@ Two layers:
   one tensor contraction away from the table.
 
 Per-call cost is numpy call overhead (tens of beams, a few curves), so the searches are
-written for few numpy calls: pieces are found with one exact complex-key searchsorted,
-coefficients are gathered as (p+1, 2, m) rows, and the Newton loops update masks in place
-instead of re-gathering shrinking subsets. They do the same floating-point operations in
-the same order as before, so the results are bit-identical to the plain forms.
+written for few numpy calls: pieces are found with one exact complex-key searchsorted and
+coefficients are gathered as (p+1, 2, m) rows. The Newton iterations, a dozen numpy calls
+per step, are compiled loops over the rays or starts (:mod:`bsslam.spline.kernels`) that
+do the same floating-point operations in the same order, so the results are bit-identical
+to the numpy forms they replaced.
 
 Curves may differ in degree: the table is padded to the largest degree p with zero
 coefficients (which Horner evaluates exactly), and a padded piece's control-point window
@@ -39,6 +40,7 @@ from functools import cached_property
 import numpy as np
 
 from bsslam.errors import SplineError
+from bsslam.spline import kernels
 from bsslam.spline.basis import basis_functions
 from bsslam.spline.closest import MAX_SAMPLES_PER_SPAN
 from bsslam.spline.closest import _MAX_NEWTON as _CLOSEST_MAX_NEWTON
@@ -418,66 +420,14 @@ def _ray_newton(batch: CurveBatch, rays: _Rays, t: np.ndarray, max_range: float
     """Newton ``t ← t − ỹ/ỹ'`` from the guesses, clamped to each curve's domain (as for one
     curve). Returns ok (k,) and the rows t, x̃, x̃', ỹ' (4, k).
 
-    A ray stops (keeps its t) at the first step that does not move it, as when only the
-    moving rays are iterated; all rays are evaluated every step, though: with tens of rays
-    the cost is the number of numpy calls, not their length, and gathering the moving
-    subset each step costs more calls than it saves.
-    """
+    A ray stops (keeps its t) at the first step that does not move it; compiled, ray by ray
+    (:func:`bsslam.spline.kernels.ray_newton`)."""
     table = batch.table
-    curve, cos, sin, origin = rays.curve, rays.cos, rays.sin, rays.origin
-    k = t.shape[0]
-    # ỹ = cos·dy − sin·dx is summed as (−sin)·dx + cos·dy: the same rounding (negation is
-    # exact, addition commutes), in one product with the rows (−sin, cos)
-    across = np.empty((2, k))
-    np.negative(sin, out=across[0])
-    across[1] = cos
-    lo, hi = table.lo.take(curve), table.hi.take(curve)
-    t = np.minimum(np.maximum(t, lo), hi)      # np.clip, cheaper
-    keys, piece_lo, coeffs = table.piece_keys, table.piece_lo, batch.coeffs_t
-    key = curve.astype(complex)
-    moving = np.ones(k, dtype=bool)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for _ in range(_RAY_MAX_NEWTON):
-            key.imag = t                       # t stays inside the domain: no clamp
-            piece = keys.searchsorted(key, side="right")
-            piece -= 1
-            s, ds = _value_and_slope(coeffs.take(piece, axis=2), t - piece_lo.take(piece))
-            s -= origin
-            s *= across
-            ds *= across
-            yt = s[1] + s[0]
-            yt /= ds[1] + ds[0]
-            t_new = np.subtract(t, yt, out=yt)
-            np.maximum(t_new, lo, out=t_new)
-            np.minimum(t_new, hi, out=t_new)
-            finite = np.isfinite(t_new)
-            step = np.subtract(t_new, t)
-            np.abs(step, out=step)
-            threshold = np.abs(t_new)
-            threshold += 1.0
-            threshold *= _STEP_TOLERANCE
-            finite &= moving                   # stopped rays keep their t
-            np.copyto(t, t_new, where=finite)
-            moving &= finite
-            moving &= step > threshold
-            if not np.count_nonzero(moving):
-                break
-        key.imag = t
-        piece = keys.searchsorted(key, side="right")
-        piece -= 1
-        s, ds = _value_and_slope(coeffs.take(piece, axis=2), t - piece_lo.take(piece))
-    s -= origin
-    along = np.stack([cos, sin])
-    values = np.empty((4, k))
-    values[0] = t
-    xt, yt = s * along, s * across
-    xt = np.add(xt[0], xt[1], out=values[1])
-    yt = yt[1] + yt[0]
-    slope_x, slope_y = ds * along, ds * across
-    np.add(slope_x[0], slope_x[1], out=values[2])
-    np.add(slope_y[1], slope_y[0], out=values[3])
-    ok = (np.abs(yt) <= _ROOT_TOLERANCE_M) & (xt > 0) & (xt <= max_range)
-    return ok, values
+    ox, oy = rays.origin
+    return kernels.ray_newton(batch.coeffs_t, table.piece_lo, table.piece_start, table.lo, table.hi,
+                              rays.curve, np.ascontiguousarray(ox), np.ascontiguousarray(oy), rays.cos, rays.sin,
+                              np.asarray(t, dtype=float), float(max_range), _RAY_MAX_NEWTON, _STEP_TOLERANCE,
+                              _ROOT_TOLERANCE_M)
 
 
 def _horner_points(c: np.ndarray, u: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
@@ -493,44 +443,6 @@ def _horner_points(c: np.ndarray, u: np.ndarray, out: np.ndarray | None = None) 
         v = v * u
         v += c[i]
     return np.add(v * u, c[0], out=out)
-
-
-def _value_slope_curvature(c: np.ndarray, u: np.ndarray, out: np.ndarray) -> np.ndarray:
-    """Points, first and second derivatives of pieces with coefficients c (p+1, 2, m) at
-    local u (m,), written into out (3, 2, m) (rows s, s', s''): :func:`_value_and_slope`
-    with the second derivative (inner loop of closest points); the last Horner step
-    writes into ``out``."""
-    n = c.shape[0]
-    if n < 3:                                  # degree ≤ 1: no curvature
-        out[2] = 0.0
-        if n == 1:
-            out[0] = c[0]
-            out[1] = 0.0
-        else:
-            out[1] = c[1]
-            np.add(c[1] * u, c[0], out=out[0])
-        return out
-    v, d, dd = c[-1], None, None
-    for i in range(n - 2, 0, -1):
-        if d is not None:
-            dd = d if dd is None else dd * u + d
-        d = v if d is None else d * u + v
-        v = v * u + c[i]
-    np.multiply(d if dd is None else dd * u + d, 2.0, out=out[2])
-    np.add(d * u, v, out=out[1])
-    np.add(v * u, c[0], out=out[0])
-    return out
-
-
-def _value_and_slope(c: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Points (2, m) and first derivatives (2, m) of pieces with coefficients c (p+1, 2, m)
-    at local parameters u (m,): Horner on both at once (as horner_with_derivatives with
-    nder = 1, with fewer temporaries — this is the inner loop of the ray search)."""
-    v, d = c[-1], None
-    for i in range(c.shape[0] - 2, -1, -1):
-        d = v if d is None else d * u + v
-        v = v * u + c[i]
-    return v, (np.zeros_like(v) if d is None else d)
 
 
 def _ray_global_search(batch: CurveBatch, rays: _Rays, max_range: float, samples_per_span: int):
@@ -693,57 +605,11 @@ def _sampled_minima(batch: CurveBatch, curve: np.ndarray, q: np.ndarray, sample_
 def _closest_newton(batch: CurveBatch, curve: np.ndarray, q: np.ndarray, t: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Clamped, downhill-safeguarded Newton on f(t) = (s(t) − q)·s'(t) for (K,) starts on
-    their curves; the best parameter seen per start and its squared distance.
-
-    Every start is iterated until all have converged (as before: results depend on it)."""
+    their curves; the best parameter seen per start and its squared distance. Compiled
+    (:func:`bsslam.spline.kernels.closest_newton`); every start is iterated until all have
+    converged (as before: results depend on it)."""
     table = batch.table
-    lo, hi = table.lo.take(curve), table.hi.take(curve)
-    tolerance = _CLOSEST_STEP_TOLERANCE * np.maximum(hi - lo, np.maximum(np.abs(lo), np.abs(hi)))
-    keys, piece_lo, coeffs = table.piece_keys, table.piece_lo, batch.coeffs_t
-    key = curve.astype(complex)
-    qt = np.ascontiguousarray(q.T)
-    t_best = t.copy()
-    d2_best = np.full(t.shape, np.inf)
-    n = t.shape[0]
-    # Evaluated at the clamped t, but t itself is what is kept and stepped from, as
-    # before: a start may lie an ulp outside (then every step clamps anew).
-    tc = np.minimum(np.maximum(t, lo), hi)
-    clamp = np.count_nonzero(tc != t) > 0
-    terms = np.empty((3, 2, n))                 # s − q, s', s'' of every start
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for step in range(_CLOSEST_MAX_NEWTON):
-            if step and clamp:
-                tc = np.minimum(np.maximum(t, lo), hi)
-            elif step:
-                tc = t
-            key.imag = tc
-            piece = keys.searchsorted(key, side="right")
-            piece -= 1
-            _value_slope_curvature(coeffs.take(piece, axis=2), tc - piece_lo.take(piece), terms)
-            terms[0] -= qt
-            # (s − q)·(s − q), (s − q)·s', (s − q)·s'' and s'·s', each summed x + y as
-            # einsum("ij,ij->i") summed them (bit-identical)
-            prod = terms * terms[0]
-            d2, f, fp = prod[:, 0] + prod[:, 1]
-            better = d2 < d2_best
-            np.copyto(t_best, t, where=better)
-            np.copyto(d2_best, d2, where=better)
-            speed2 = terms[1] * terms[1]
-            speed2 = speed2[0] + speed2[1]
-            fp += speed2                       # the same sum as speed2 + (s − q)·s''
-            np.copyto(fp, speed2, where=~(fp > 0))
-            t_new = np.divide(f, fp, out=f)
-            np.subtract(t, t_new, out=t_new)
-            np.maximum(t_new, lo, out=t_new)
-            np.minimum(t_new, hi, out=t_new)
-            np.copyto(t_new, t, where=np.isnan(t_new))    # clamped: NaN is the only non-finite
-            done = np.abs(t_new - t) <= tolerance
-            t = t_new
-            if np.count_nonzero(done) == n:
-                break
-    dx, dy = _evaluate_points(batch, curve, t) - qt
-    d2 = dx * dx + dy * dy
-    final = d2 <= d2_best * (1.0 + 1e-12)
-    np.copyto(t_best, t, where=final)
-    np.copyto(d2_best, d2, where=final)
-    return t_best, d2_best
+    return kernels.closest_newton(batch.coeffs_t, table.piece_lo, table.piece_start, table.lo, table.hi,
+                                  np.asarray(curve, dtype=np.intp), np.ascontiguousarray(q[:, 0]),
+                                  np.ascontiguousarray(q[:, 1]), np.asarray(t, dtype=float),
+                                  _CLOSEST_MAX_NEWTON, _CLOSEST_STEP_TOLERANCE)
