@@ -121,6 +121,25 @@ def test_bad_inputs_raise():
         closest_points_batch(batch, np.zeros(1, dtype=int), np.zeros((2, 2)))
 
 
+def test_degenerate_newton_steps_match_each_curve():
+    """Divisions by zero inside the compiled Newton loops behave as numpy's (±inf, NaN),
+    not as Python's ZeroDivisionError: a ray along a straight curve (ỹ' = 0 at every t),
+    and closest points on a curve collapsed to one point (s' = 0, f/f' = 0/0)."""
+    line = BSplineCurve(np.array([[0.0, 1.0], [2.0, 1.0], [4.0, 1.0]]), clamped_knots(4.0, 2.0, 1), 1)
+    dot = BSplineCurve(np.tile([[1.0, -2.0]], (4, 1)), clamped_knots(3.0, 3.0, 3), 3)
+    batch = batch_of([line, dot])
+    origins, angles, guess = np.array([-1.0, 1.0]), np.array([0.0, np.pi]), np.array([1.0, 3.0])
+    hits = intersect_rays_batch(batch, np.zeros(2, dtype=int), origins, angles, t0=guess)
+    one = intersect_rays(line, origins, angles, t0=guess)
+    _compare_hits(one, hits)
+    queries = np.array([[0.0, 0.0], [5.0, 5.0]])
+    t, points, distance = closest_points_batch(batch, np.ones(2, dtype=int), queries, t0=np.array([0.5, 2.0]))
+    np.testing.assert_array_equal(points, [[1.0, -2.0], [1.0, -2.0]])
+    np.testing.assert_allclose(distance, np.linalg.norm(queries - [1.0, -2.0], axis=1), rtol=1e-15)
+    t_one, _, d_one = closest_point(dot, queries, t0=np.array([0.5, 2.0]))
+    np.testing.assert_array_equal(t, t_one)
+
+
 def test_extreme_control_points_brute_force():
     rng = np.random.default_rng(11)
     cs = [BSplineCurve(rng.uniform(-4, 4, (k, 2)), clamped_knots_with_spans(1.0, k - d, d), d)

@@ -23,7 +23,9 @@ import numpy as np
 from numba import njit
 
 # cache=True: compiled once per machine into __pycache__, not at every start (~1 s each).
-_jit = njit(cache=True, nogil=True)
+# error_model="numpy": x/0 gives ±inf or NaN as in numpy (the searches rely on it: a ray
+# parallel to its curve has ỹ' = 0), where Python semantics would raise.
+_jit = njit(cache=True, nogil=True, error_model="numpy")
 
 
 @_jit
