@@ -544,62 +544,12 @@ def _sampled_minima(batch: CurveBatch, curve: np.ndarray, q: np.ndarray, sample_
                     samples_per_span: int) -> tuple[np.ndarray, np.ndarray]:
     """(K,) starts and their (K,) query index: discrete local minima of the distance along
     each query's curve sampled as one curve's ``closest_point`` samples it, and their
-    neighbours."""
+    neighbours (compiled: :func:`bsslam.spline.kernels.sampled_minima`)."""
     table = batch.table
-    mark = np.zeros(table.lo.shape[0], dtype=bool)
-    mark[curve] = True
-    used = mark.nonzero()[0]
-    piece = mark[table.piece_curve].nonzero()[0]        # pieces of the used curves, in order
-    window = batch.control_points.take(table.window.take(piece, axis=0), axis=0)
-    # control polygon length of each piece (padding repeats a point: adds no length);
-    # the expression and summation order of np.linalg.norm and np.sum
-    side = window[:, 1:] - window[:, :-1]
-    side *= side
-    polygon = np.sqrt(side[:, :, 0] + side[:, :, 1]).sum(axis=1)
-    counts = np.ceil(polygon / sample_step_m)
-    np.maximum(counts, samples_per_span, out=counts)
-    np.minimum(counts, MAX_SAMPLES_PER_SPAN, out=counts)
-    counts = counts.astype(np.intp)
-    # Grid of each used curve: every piece cut in equal parts, then the curve's end (one
-    # more sample on its last piece, set to hi below).
-    last = table.piece_start.take(used + 1) - 1
-    is_last = np.zeros(table.piece_lo.shape[0], dtype=np.intp)
-    is_last[last] = 1
-    extended = counts + is_last.take(piece)
-    piece_of = np.repeat(piece, extended)
-    n_grid = piece_of.shape[0]
-    block_end = np.cumsum(extended)
-    part = np.arange(n_grid) - np.repeat(block_end - extended, extended)
-    t_grid = table.piece_lo.take(piece_of) + table.width.take(piece_of) * (part / np.repeat(counts, extended))
-    grid_end = block_end[is_last.take(piece).nonzero()[0]]          # (U,) end of each used curve's grid
-    t_grid[grid_end - 1] = table.hi.take(used)
-    grid_curve = table.piece_curve.take(piece_of)
-    samples = _evaluate_points(batch, grid_curve, t_grid)          # (2, G)
-    # distances of each query to its curve's samples, flattened query by query
-    inverse = np.cumsum(mark).take(curve) - 1
-    g1 = grid_end.take(inverse)
-    size = g1 - np.concatenate([[0], grid_end[:-1]]).take(inverse)
-    q_end = np.cumsum(size)
-    q_start = q_end - size
-    owner = np.repeat(np.arange(q.shape[0]), size)
-    index = np.arange(owner.shape[0]) + np.repeat(g1 - q_end, size)  # sample of each entry
-    diff = q.T.take(owner, axis=1) - samples.take(index, axis=1)
-    d2 = diff[0] * diff[0] + diff[1] * diff[1]
-    prev = np.empty_like(d2)
-    prev[1:] = d2[:-1]
-    prev[q_start] = np.inf
-    nxt = np.empty_like(d2)
-    nxt[:-1] = d2[1:]
-    nxt[q_end - 1] = np.inf
-    # strict on the left, loose on the right: a plateau yields one start, not many
-    is_min = d2 < prev
-    is_min &= d2 <= nxt
-    at = is_min.nonzero()[0]
-    at_owner = owner.take(at)
-    # start also from both neighbours (a corner at repeated knots is seen from one side only)
-    starts = np.concatenate([np.maximum(at - 1, q_start.take(at_owner)), at,
-                             np.minimum(at + 1, q_end.take(at_owner) - 1)])
-    return t_grid.take(index.take(starts)), np.concatenate([at_owner, at_owner, at_owner])
+    return kernels.sampled_minima(batch.coeffs_t, batch.control_points, table.window, table.piece_lo, table.width,
+                                  table.piece_start, table.lo, table.hi, np.asarray(curve, dtype=np.intp),
+                                  np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1]),
+                                  float(sample_step_m), int(samples_per_span), MAX_SAMPLES_PER_SPAN)
 
 
 def _closest_newton(batch: CurveBatch, curve: np.ndarray, q: np.ndarray, t: np.ndarray

@@ -207,3 +207,104 @@ def closest_newton(coeffs_t, piece_lo, piece_start, lo, hi, curve, qx, qy, t0, m
             t_best[i] = t[i]
             d2_best[i] = d2
     return t_best, d2_best
+
+
+@_jit
+def sampled_minima(coeffs_t, control_points, window, piece_lo, width, piece_start, lo, hi, curve, qx, qy,
+                   sample_step, samples_per_span, max_samples):
+    """Starts for closest points: each query's curve sampled as one curve's
+    ``closest_point`` samples it (every piece cut into ⌈control polygon / sample_step⌉
+    equal parts, clipped to [samples_per_span, max_samples], then the curve's end), the
+    discrete local minima of the squared distance to the query (strict on the left, loose
+    on the right, so a plateau gives one) and both their neighbours.
+
+    Args:
+        control_points: (N, 2) stacked (m); window: (S, p+1) control-point rows per piece.
+        curve: (q,) curve of each query; qx, qy: (q,) query points (m).
+
+    Returns:
+        (K,) start parameters (m) and (K,) their query: first every minimum's left
+        neighbour, then the minima, then their right neighbours (queries in order within
+        each part), the order of ``batch._sampled_minima``'s numpy form.
+    """
+    n_curves = lo.shape[0]
+    used = np.zeros(n_curves, dtype=np.bool_)
+    for c in curve:
+        used[c] = True
+    counts = np.zeros(piece_lo.shape[0], dtype=np.intp)
+    grid_start = np.zeros(n_curves + 1, dtype=np.intp)   # only used curves have samples
+    total = 0
+    for c in range(n_curves):
+        grid_start[c] = total
+        if not used[c]:
+            continue
+        for s in range(piece_start[c], piece_start[c + 1]):
+            polygon = 0.0
+            for j in range(window.shape[1] - 1):
+                dx = control_points[window[s, j + 1], 0] - control_points[window[s, j], 0]
+                dy = control_points[window[s, j + 1], 1] - control_points[window[s, j], 1]
+                polygon += math.sqrt(dx * dx + dy * dy)
+            n = math.ceil(polygon / sample_step)
+            if not n >= samples_per_span:          # NaN too: a diverged curve still samples
+                n = samples_per_span
+            counts[s] = min(n, max_samples)
+            total += counts[s]
+        total += 1                                 # the curve's end
+    grid_start[n_curves] = total
+    t_grid = np.empty(total)
+    px = np.empty(total)
+    py = np.empty(total)
+    for c in range(n_curves):
+        if not used[c]:
+            continue
+        g = grid_start[c]
+        first, last = piece_start[c], piece_start[c + 1] - 1
+        for s in range(first, last + 1):
+            for part in range(counts[s]):
+                t_grid[g] = piece_lo[s] + width[s] * (part / counts[s])
+                g += 1
+        t_grid[g] = hi[c]
+        for g in range(grid_start[c], grid_start[c + 1]):
+            t = min(max(t_grid[g], lo[c]), hi[c])
+            piece = _piece_of(piece_lo, first, last, t)
+            px[g], py[g] = _point(coeffs_t, piece, t - piece_lo[piece])
+    # the minima of each query's distances along its curve's samples
+    n_q = curve.shape[0]
+    size = 0
+    for i in range(n_q):
+        size += grid_start[curve[i] + 1] - grid_start[curve[i]]
+    at = np.empty(size, dtype=np.intp)             # sample index of each minimum
+    at_lo = np.empty(size, dtype=np.intp)          # its query's first and last sample
+    at_hi = np.empty(size, dtype=np.intp)
+    at_owner = np.empty(size, dtype=np.intp)
+    found = 0
+    for i in range(n_q):
+        c = curve[i]
+        g0, g1 = grid_start[c], grid_start[c + 1]
+        prev = np.inf
+        dx = qx[i] - px[g0]
+        dy = qy[i] - py[g0]
+        d2 = dx * dx + dy * dy
+        for g in range(g0, g1):
+            if g + 1 < g1:
+                dx = qx[i] - px[g + 1]
+                dy = qy[i] - py[g + 1]
+                nxt = dx * dx + dy * dy
+            else:
+                nxt = np.inf
+            if d2 < prev and d2 <= nxt:
+                at[found] = g
+                at_lo[found] = g0
+                at_hi[found] = g1 - 1
+                at_owner[found] = i
+                found += 1
+            prev = d2
+            d2 = nxt
+    t_start = np.empty(3 * found)
+    owner = np.empty(3 * found, dtype=np.intp)
+    for k in range(found):
+        t_start[k] = t_grid[max(at[k] - 1, at_lo[k])]
+        t_start[found + k] = t_grid[at[k]]
+        t_start[2 * found + k] = t_grid[min(at[k] + 1, at_hi[k])]
+        owner[k] = owner[found + k] = owner[2 * found + k] = at_owner[k]
+    return t_start, owner
