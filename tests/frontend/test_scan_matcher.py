@@ -264,7 +264,8 @@ def test_residuals_match_the_elementwise_formulas():
     c, s = math.cos(x[2]), math.sin(x[2])
     px, py = cur[found, 0], cur[found, 1]
     wx, wy = c * px - s * py + x[0], s * px + c * py + x[1]
-    _, idx = reference.tree.query(np.column_stack((wx, wy)))
+    d2 = (wx[:, None] - reference.line_points[None, :, 0]) ** 2 + (wy[:, None] - reference.line_points[None, :, 1]) ** 2
+    idx = np.argmin(d2, axis=1)
     q, n = reference.line_points[idx], reference.line_normals[idx]
     np.testing.assert_allclose(r, n[:, 0] * (wx - q[:, 0]) + n[:, 1] * (wy - q[:, 1]), atol=1e-12)
     J_expected = np.column_stack((n[:, 0], n[:, 1], n[:, 0] * (-s * px - c * py) + n[:, 1] * (c * px - s * py)))

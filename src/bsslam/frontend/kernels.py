@@ -98,3 +98,128 @@ def splat_max(values, cells, kernel_offset, kernel_value):
             v = kernel_value[k]
             if values[j] < v:
                 values[j] = v
+
+
+# -- nearest line point ---------------------------------------------------------------------
+#
+# The refinement asks, ~7 times per scan, for the nearest line-like reference point of each of
+# a few hundred moved scan points within a gate of a few decimetres. A uniform grid of cells
+# about the gate's size, its points stored cell by cell, answers that by scanning the few
+# cells the gate's square touches; it replaces a KD-tree query (and rebuilds faster).
+
+
+@_jit
+def grid_index(points, cell, max_cells):
+    """Bucket ``points`` (m, 2) (m, m ≥ 1) into square cells of side ``cell`` (m) over their
+    bounding box, the side doubled until there are at most ``max_cells`` cells.
+
+    Returns:
+        lo_x, lo_y: corner (m) of cell (0, 0); cell: the side used (m); nx, ny: cells;
+        start: (nx·ny + 1,) the points of flat cell k = cx·ny + cy are ``order[start[k]:
+        start[k+1]]``; order: (m,) point indices, cell by cell, increasing within a cell.
+    """
+    m = points.shape[0]
+    lo_x, lo_y = points[0, 0], points[0, 1]
+    hi_x, hi_y = lo_x, lo_y
+    for i in range(1, m):
+        lo_x, hi_x = min(lo_x, points[i, 0]), max(hi_x, points[i, 0])
+        lo_y, hi_y = min(lo_y, points[i, 1]), max(hi_y, points[i, 1])
+    while True:
+        nx = int(math.floor((hi_x - lo_x) / cell)) + 1
+        ny = int(math.floor((hi_y - lo_y) / cell)) + 1
+        if nx * ny <= max_cells:
+            break
+        cell *= 2.0
+    key = np.empty(m, dtype=np.intp)
+    start = np.zeros(nx * ny + 1, dtype=np.intp)
+    for i in range(m):
+        cx = min(int(math.floor((points[i, 0] - lo_x) / cell)), nx - 1)
+        cy = min(int(math.floor((points[i, 1] - lo_y) / cell)), ny - 1)
+        key[i] = cx * ny + cy
+        start[key[i] + 1] += 1
+    for k in range(nx * ny):
+        start[k + 1] += start[k]
+    fill = start[:-1].copy()
+    order = np.empty(m, dtype=np.intp)
+    for i in range(m):                       # counting sort: stable
+        order[fill[key[i]]] = i
+        fill[key[i]] += 1
+    return lo_x, lo_y, cell, nx, ny, start, order
+
+
+@_jit
+def _nearest(xy, start, lo_x, lo_y, cell, nx, ny, qx, qy, gate):
+    """Row of ``xy`` (k, ≥ 2) (the grid's points in its columns 0, 1 (m), cell by cell) nearest
+    to (qx, qy) at a distance
+    below ``gate`` (m), or −1. The squared distance is ``dx² + dy²`` compared with
+    ``gate²`` (strictly), as scipy's cKDTree compares them for ``distance_upper_bound``;
+    of equally near points the first in the grid's order is taken."""
+    best = gate * gate
+    found = -1
+    # The cells of the gate's square around q, a millionth of a cell wider for rounding.
+    fx0, fx1 = (qx - gate - lo_x) / cell - 1e-6, (qx + gate - lo_x) / cell + 1e-6
+    fy0, fy1 = (qy - gate - lo_y) / cell - 1e-6, (qy + gate - lo_y) / cell + 1e-6
+    if fx1 < 0.0 or fy1 < 0.0 or fx0 >= nx or fy0 >= ny:
+        return found
+    cx0, cx1 = max(int(math.floor(fx0)), 0), min(int(math.floor(fx1)), nx - 1)
+    cy0, cy1 = max(int(math.floor(fy0)), 0), min(int(math.floor(fy1)), ny - 1)
+    for cx in range(cx0, cx1 + 1):
+        for j in range(start[cx * ny + cy0], start[cx * ny + cy1 + 1]):   # cells cy0 … cy1
+            dx = xy[j, 0] - qx
+            dy = xy[j, 1] - qy
+            d2 = dx * dx + dy * dy
+            if d2 < best:
+                best = d2
+                found = j
+    return found
+
+
+@_jit
+def nearest_within(xy, start, lo_x, lo_y, cell, nx, ny, queries, gate):
+    """:func:`_nearest` of each of ``queries`` (n, 2): (n,) rows of ``xy``, −1 for none."""
+    out = np.empty(queries.shape[0], dtype=np.intp)
+    for i in range(queries.shape[0]):
+        out[i] = _nearest(xy, start, lo_x, lo_y, cell, nx, ny, queries[i, 0], queries[i, 1], gate)
+    return out
+
+
+@_jit
+def point_to_line(rotated, x0, x1, gate, qn, start, lo_x, lo_y, cell, nx, ny, huber):
+    """Point-to-line residuals and Jacobian of :meth:`ReferenceMap._linearise`.
+
+    Args:
+        rotated: (n, 2) the scan points rotated by the pose (m) (``R p``, from numpy);
+            x0, x1: the pose's translation (m).
+        gate: correspondence gate (m).
+        qn: (k, 4) line points (m) and their unit normals, cell by cell as in the grid
+            ``start, lo_x, lo_y, cell, nx, ny`` (:func:`grid_index` of the points).
+        huber: Huber threshold (m).
+
+    Returns:
+        Jr (m, 4): rows (n_x, n_y, n_y·(Rp)_x − n_x·(Rp)_y, r) of the points with a line point
+        within the gate, r = nᵀ(R p + t − q) (m) to the nearest one q; w (m,) Huber weights
+        huber / max(|r|, huber); found (n,) which points have one.
+
+    The operations are numpy's in :meth:`_linearise` before it, in the same order.
+    """
+    n = rotated.shape[0]
+    Jr = np.empty((n, 4))
+    w = np.empty(n)
+    found = np.zeros(n, dtype=np.bool_)
+    m = 0
+    for i in range(n):
+        rx, ry = rotated[i, 0], rotated[i, 1]
+        mx, my = rx + x0, ry + x1
+        j = _nearest(qn, start, lo_x, lo_y, cell, nx, ny, mx, my, gate)
+        if j < 0:
+            continue
+        found[i] = True
+        nx_, ny_ = qn[j, 2], qn[j, 3]
+        Jr[m, 0] = nx_
+        Jr[m, 1] = ny_
+        Jr[m, 2] = ny_ * rx - nx_ * ry
+        r = nx_ * (mx - qn[j, 0]) + ny_ * (my - qn[j, 1])
+        Jr[m, 3] = r
+        w[m] = huber / max(abs(r), huber)
+        m += 1
+    return Jr[:m].copy(), w[:m].copy(), found

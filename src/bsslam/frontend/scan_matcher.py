@@ -35,7 +35,7 @@ from scipy.spatial import cKDTree
 
 from bsslam.errors import InputError
 from bsslam.config import FrontendConfig
-from bsslam.frontend.kernels import splat_max, window_scores
+from bsslam.frontend.kernels import grid_index, point_to_line, splat_max, window_scores
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.se2 import compose
 
@@ -345,7 +345,7 @@ class MatchResult:
 
 
 class ReferenceMap:
-    """Reference points prepared for matching: two likelihood fields and a KD-tree of the
+    """Reference points prepared for matching: two likelihood fields and a grid of the
     line-like points with their normals. Build once, match many scans against it.
 
     Args:
@@ -377,15 +377,18 @@ class ReferenceMap:
         self._index_lines()
 
     def _index_lines(self) -> None:
-        """KD-tree of the line points, and their points and normals side by side (k, 4)
-        so that a correspondence is one gather."""
-        self.tree = _kdtree(self.line_points)
-        self._n_line = self.line_points.shape[0]
-        self._line_qn = np.concatenate((self.line_points, self.line_normals), axis=1)
+        """Grid of the line points (:func:`~bsslam.frontend.kernels.grid_index`, cells of
+        the final gate's size), and their points and normals side by side (k, 4) in the
+        grid's order, so that a correspondence is one row."""
+        lo_x, lo_y, cell, nx, ny, start, order = grid_index(self.line_points, self.config.icp_min_distance_m,
+                                                            8 * self.line_points.shape[0] + 4096)
+        self._line_grid = (start, lo_x, lo_y, cell, nx, ny)
+        self._line_qn = np.concatenate((self.line_points, self.line_normals), axis=1)[order]
 
     def extend(self, points: np.ndarray, normals: np.ndarray, linear: np.ndarray) -> bool:
         """Add reference points (with normals and line flags) in place: both fields are
-        raised where the new points fall inside the grids built, and the KD-tree is rebuilt.
+        raised where the new points fall inside the grids built, and the line points'
+        grid is rebuilt.
         Returns False (nothing changed) when the map was not usable; build anew then."""
         if not self.usable:
             return False
@@ -503,24 +506,12 @@ class ReferenceMap:
             which points had a correspondence (m of them).
         """
         c, s = math.cos(x2), math.sin(x2)
-        rotated = points @ np.array(((c, s), (-s, c)))                     # R p, (n, 2)
-        moved = rotated + (x0, x1)
-        _, idx = self.tree.query(moved, distance_upper_bound=gate)
-        found = idx < self._n_line                       # a miss is reported as index m
-        if not found.all():
-            idx, rotated, moved = idx[found], rotated[found], moved[found]
-        qn = self._line_qn[idx]                                            # (m, 4): q, n
-        n = qn[:, 2:]
-        Jr = np.empty((idx.shape[0], 4))
-        Jr[:, :2] = n
-        # ∂(R p)/∂φ = (−(R p)_y, (R p)_x)
-        Jr[:, 2] = n[:, 1] * rotated[:, 0] - n[:, 0] * rotated[:, 1]
-        r = Jr[:, 3]
-        np.einsum("ij,ij->i", n, moved - qn[:, :2], out=r)
-        # Huber: 1 inside the threshold, huber/|r| outside.
-        huber = self.config.huber_m
-        w = huber / np.maximum(np.abs(r), huber)
-        return Jr, w, found
+        # R p by numpy's matrix product (BLAS, with fused multiply-adds the kernel would not
+        # reproduce); the rest is one compiled pass over the points.
+        rotated = points @ np.array(((c, s), (-s, c)))                     # (n, 2)
+        start, lo_x, lo_y, cell, nx, ny = self._line_grid
+        return point_to_line(rotated, x0, x1, gate, self._line_qn, start, lo_x, lo_y, cell, nx, ny,
+                             self.config.huber_m)
 
     def _residuals(self, points: np.ndarray, x: np.ndarray, gate: float):
         """Point-to-line residuals of robot-frame ``points`` (n, 2) moved by the pose ``x``
