@@ -35,6 +35,7 @@ from scipy.spatial import cKDTree
 
 from bsslam.errors import InputError
 from bsslam.config import FrontendConfig
+from bsslam.frontend.kernels import grid_index, point_to_line, splat_max, window_scores
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.se2 import compose
 
@@ -184,16 +185,10 @@ class LikelihoodField:
         lo, hi = 2 * self.pad + self.radius + 1, np.array(self.shape) - 2 * self.pad - self.radius - 2
         inside = np.all((c >= lo) & (c <= hi), axis=1)
         self._splat_cells(np.unique(c[inside, 0] * self.shape[1] + c[inside, 1]))
-        # The decimated copies of :meth:`_rows` are stale now (step-1 views are not copies).
-        rows = self.__dict__.get("_row_views")
-        if rows:
-            for key in [key for key in rows if key[0] != 1]:
-                del rows[key]
 
     def _splat_cells(self, occupied: np.ndarray) -> None:
-        target = (occupied[:, None] + self.kernel_offset[None, :]).ravel()
-        value = np.broadcast_to(self.kernel_value, (occupied.shape[0], self.kernel_value.shape[0])).ravel()
-        np.maximum.at(self.values, target, value)
+        """Raise the field to the kernel around each flat cell of ``occupied`` (q,)."""
+        splat_max(self.values, occupied, self.kernel_offset, self.kernel_value)
 
     def cell_index(self, points: np.ndarray) -> np.ndarray:
         """Flat cell index (...,) of world points (..., 2), clipped ``pad`` cells inside."""
@@ -204,91 +199,38 @@ class LikelihoodField:
 
     def score_poses(self, points: np.ndarray, poses: np.ndarray, offsets: np.ndarray) -> np.ndarray:
         """Mean field value of robot-frame ``points`` (n, 2) at every pose ``poses[p]``
-        shifted by every whole-cell offset ``offsets[t]`` (t, 2) (int cells): (p, t)."""
+        shifted by every whole-cell offset ``offsets[t]`` (t, 2) (int cells): (p, t) float32.
+
+        The plain form (one flat index per pose, offset and point), kept as the oracle of
+        :meth:`score_grid`. The sum over the points is taken in float64, where it is exact
+        (see :func:`~bsslam.frontend.kernels.window_scores`), then rounded to float32 and
+        divided by n in float32, so the two agree to the bit."""
         c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
         wx = c[:, None] * points[None, :, 0] - s[:, None] * points[None, :, 1] + poses[:, 0:1]
         wy = s[:, None] * points[None, :, 0] + c[:, None] * points[None, :, 1] + poses[:, 1:2]
         base = self.cell_index(np.stack((wx, wy), axis=-1))               # (p, n)
         flat_offset = offsets[:, 0] * self.shape[1] + offsets[:, 1]       # (t,)
         idx = base[:, None, :] + flat_offset[None, :, None]               # (p, t, n)
-        return np.take(self.values, idx).sum(axis=2, dtype=np.float32) / points.shape[0]
-
-    def __getstate__(self) -> dict:
-        # The cached row views and decimated copies are derived data.
-        state = dict(self.__dict__)
-        state.pop("_row_views", None)
-        return state
-
-    def _rows(self, step: int, width: int) -> tuple[np.ndarray, int, np.ndarray, np.ndarray]:
-        """Every run of ``width`` cells ``step`` apart along y as one item, for gathering
-        whole window rows of :meth:`score_grid` (``width`` = 2k + 1, reach k·step).
-
-        Returns:
-            rows: 1-D view of opaque ``width``·4-byte items, item ``i`` holding the floats
-                ``i, i + 1, …`` of a (step, nx, ⌈ny/step⌉) array ``D[par, x, j] =
-                field[x, j·step + par]`` (for step 1 that is the field itself);
-            x_stride: items from one x cell to the next;
-            y_first: (ny,) ``x·x_stride + y_first[y]`` is the item of the first row of the
-                window centred on cell (x, y) (for reach ≤ x, y < n − reach);
-            row_offset: (width,) items from the window's first row to each of its rows.
-
-        Gathering one item per (pose, point, row) copies a whole window row at a time:
-        ``width`` fewer indexed copies than gathering cells, and the same float32 values.
-        For step 1 the view follows :meth:`add`'s in-place updates; the decimated copy for
-        step > 1 is dropped by :meth:`add` and made again when needed (~0.1 ms)."""
-        cache = self.__dict__.setdefault("_row_views", {})
-        key = (step, width)
-        rows = cache.get(key)
-        if rows is None:
-            nx, ny = self.shape
-            reach = (width // 2) * step
-            y0 = np.arange(ny) - reach                     # the window's first column
-            if step == 1:
-                deci = self.values
-                x_stride = ny
-                y_first = y0 - reach * x_stride
-            else:
-                x_stride = -(-ny // step)
-                deci = np.zeros((step, nx, x_stride), dtype=np.float32)
-                grid = self.values.reshape(nx, ny)
-                for par in range(step):
-                    deci[par, :, :(ny - par + step - 1) // step] = grid[:, par::step]
-                deci = deci.ravel()
-                y_first = (y0 % step) * (nx * x_stride) + y0 // step - reach * x_stride
-            view = np.ndarray(shape=(deci.shape[0] - width + 1,), dtype=np.dtype((np.void, 4 * width)),
-                              buffer=deci, strides=(4,))
-            rows = (view, x_stride, y_first, np.arange(width) * (step * x_stride))
-            cache[key] = rows
-        return rows
+        total = np.take(self.values, idx).sum(axis=2, dtype=np.float64).astype(np.float32)
+        return total / np.float32(points.shape[0])
 
     def score_grid(self, points: np.ndarray, poses: np.ndarray, half_cells: int, step_cells: int) -> np.ndarray:
         """:meth:`score_poses` for the offsets ``_offset_grid(half_cells, step_cells)`` (in
         that order, x offset major): (p, t) mean field values, t = (2·(half//step) + 1)².
 
         The offsets form a square grid of cells, so each moved point reads one strided
-        window of the 2-D field, row by row (:meth:`_rows`): one gather of (p, n, k) rows
-        of k values instead of a (p, t, n) flat index array. ``half_cells`` must not exceed
-        ``pad`` (the clipped base cell then keeps the window inside the grid).
+        window of the 2-D field in place (:func:`~bsslam.frontend.kernels.window_scores`).
+        ``half_cells`` must not exceed ``pad`` (the clipped base cell then keeps the window
+        inside the grid).
         """
         if half_cells > self.pad:
             raise ValueError("offsets beyond the field's padding")
-        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-        wx = c[:, None] * points[None, :, 0] - s[:, None] * points[None, :, 1] + poses[:, 0:1]
-        wy = s[:, None] * points[None, :, 0] + c[:, None] * points[None, :, 1] + poses[:, 1:2]
-        width = 2 * (half_cells // step_cells) + 1
+        poses = np.asarray(poses, dtype=float)
         nx, ny = self.shape
-        ix = np.floor((wx - self.origin[0]) / self.resolution).astype(np.intp)
-        iy = np.floor((wy - self.origin[1]) / self.resolution).astype(np.intp)
-        np.clip(ix, self.pad, nx - 1 - self.pad, out=ix)                     # window centre
-        np.clip(iy, self.pad, ny - 1 - self.pad, out=iy)
-        rows, x_stride, y_first, row_offset = self._rows(step_cells, width)
-        first = ix * x_stride + y_first[iy]
-        patches = rows[first[:, :, None] + row_offset].view(np.float32).reshape(
-            poses.shape[0], points.shape[0], width * width)                  # (p, n, t)
-        # Sum over the points as a float32 matrix product (BLAS) rather than a strided
-        # reduction over the middle axis.
-        ones = np.ones(points.shape[0], dtype=np.float32)
-        return np.matmul(ones, patches) / np.float32(points.shape[0])
+        return window_scores(self.values, nx, ny, float(self.origin[0]), float(self.origin[1]), self.resolution,
+                             self.pad, np.ascontiguousarray(points, dtype=float), np.cos(poses[:, 2]),
+                             np.sin(poses[:, 2]), np.ascontiguousarray(poses[:, 0]), np.ascontiguousarray(poses[:, 1]),
+                             half_cells // step_cells, step_cells)
 
 
 def _offset_grid(half_cells: int, step_cells: int) -> np.ndarray:
@@ -403,7 +345,7 @@ class MatchResult:
 
 
 class ReferenceMap:
-    """Reference points prepared for matching: two likelihood fields and a KD-tree of the
+    """Reference points prepared for matching: two likelihood fields and a grid of the
     line-like points with their normals. Build once, match many scans against it.
 
     Args:
@@ -435,15 +377,18 @@ class ReferenceMap:
         self._index_lines()
 
     def _index_lines(self) -> None:
-        """KD-tree of the line points, and their points and normals side by side (k, 4)
-        so that a correspondence is one gather."""
-        self.tree = _kdtree(self.line_points)
-        self._n_line = self.line_points.shape[0]
-        self._line_qn = np.concatenate((self.line_points, self.line_normals), axis=1)
+        """Grid of the line points (:func:`~bsslam.frontend.kernels.grid_index`, cells of
+        the final gate's size), and their points and normals side by side (k, 4) in the
+        grid's order, so that a correspondence is one row."""
+        lo_x, lo_y, cell, nx, ny, start, order = grid_index(self.line_points, self.config.icp_min_distance_m,
+                                                            8 * self.line_points.shape[0] + 4096)
+        self._line_grid = (start, lo_x, lo_y, cell, nx, ny)
+        self._line_qn = np.concatenate((self.line_points, self.line_normals), axis=1)[order]
 
     def extend(self, points: np.ndarray, normals: np.ndarray, linear: np.ndarray) -> bool:
         """Add reference points (with normals and line flags) in place: both fields are
-        raised where the new points fall inside the grids built, and the KD-tree is rebuilt.
+        raised where the new points fall inside the grids built, and the line points'
+        grid is rebuilt.
         Returns False (nothing changed) when the map was not usable; build anew then."""
         if not self.usable:
             return False
@@ -561,24 +506,12 @@ class ReferenceMap:
             which points had a correspondence (m of them).
         """
         c, s = math.cos(x2), math.sin(x2)
-        rotated = points @ np.array(((c, s), (-s, c)))                     # R p, (n, 2)
-        moved = rotated + (x0, x1)
-        _, idx = self.tree.query(moved, distance_upper_bound=gate)
-        found = idx < self._n_line                       # a miss is reported as index m
-        if not found.all():
-            idx, rotated, moved = idx[found], rotated[found], moved[found]
-        qn = self._line_qn[idx]                                            # (m, 4): q, n
-        n = qn[:, 2:]
-        Jr = np.empty((idx.shape[0], 4))
-        Jr[:, :2] = n
-        # ∂(R p)/∂φ = (−(R p)_y, (R p)_x)
-        Jr[:, 2] = n[:, 1] * rotated[:, 0] - n[:, 0] * rotated[:, 1]
-        r = Jr[:, 3]
-        np.einsum("ij,ij->i", n, moved - qn[:, :2], out=r)
-        # Huber: 1 inside the threshold, huber/|r| outside.
-        huber = self.config.huber_m
-        w = huber / np.maximum(np.abs(r), huber)
-        return Jr, w, found
+        # R p by numpy's matrix product (BLAS, with fused multiply-adds the kernel would not
+        # reproduce); the rest is one compiled pass over the points.
+        rotated = points @ np.array(((c, s), (-s, c)))                     # (n, 2)
+        start, lo_x, lo_y, cell, nx, ny = self._line_grid
+        return point_to_line(rotated, x0, x1, gate, self._line_qn, start, lo_x, lo_y, cell, nx, ny,
+                             self.config.huber_m)
 
     def _residuals(self, points: np.ndarray, x: np.ndarray, gate: float):
         """Point-to-line residuals of robot-frame ``points`` (n, 2) moved by the pose ``x``
