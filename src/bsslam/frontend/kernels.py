@@ -18,13 +18,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
-# cache=True: compiled once per machine into __pycache__, not at every start (~1 s each).
-_jit = njit(cache=True, nogil=True)
+from bsslam.compiled import jit
 
 
-@_jit
+@jit
 def window_scores(values, nx, ny, origin_x, origin_y, resolution, pad, points, cos, sin, tx, ty, reach, step):
     """Mean field value of ``points`` under every pose and every whole-cell offset of a
     square window: the body of :meth:`LikelihoodField.score_grid`.
@@ -89,7 +87,7 @@ def window_scores(values, nx, ny, origin_x, origin_y, resolution, pad, points, c
     return out
 
 
-@_jit
+@jit
 def splat_max(values, cells, kernel_offset, kernel_value):
     """``values[cell + kernel_offset[k]] = max(…, kernel_value[k])`` for every cell of
     ``cells`` (q,) and kernel entry k, in place on the float32 field ``values``: what
@@ -112,7 +110,7 @@ def splat_max(values, cells, kernel_offset, kernel_value):
 # cells the gate's square touches; it replaces a KD-tree query (and rebuilds faster).
 
 
-@_jit
+@jit
 def grid_index(points, cell, max_cells):
     """Bucket ``points`` (m, 2) (m, m ≥ 1) into square cells of side ``cell`` (m) over their
     bounding box, the side doubled until there are at most ``max_cells`` cells.
@@ -151,7 +149,7 @@ def grid_index(points, cell, max_cells):
     return lo_x, lo_y, cell, nx, ny, start, order
 
 
-@_jit
+@jit
 def _nearest(xy, start, lo_x, lo_y, cell, nx, ny, qx, qy, gate):
     """Row of ``xy`` (k, ≥ 2) (the grid's points in its columns 0, 1 (m), cell by cell) nearest
     to (qx, qy) at a distance
@@ -178,7 +176,7 @@ def _nearest(xy, start, lo_x, lo_y, cell, nx, ny, qx, qy, gate):
     return found
 
 
-@_jit
+@jit
 def nearest_within(xy, start, lo_x, lo_y, cell, nx, ny, queries, gate):
     """:func:`_nearest` of each of ``queries`` (n, 2): (n,) rows of ``xy``, −1 for none."""
     out = np.empty(queries.shape[0], dtype=np.intp)
@@ -187,7 +185,7 @@ def nearest_within(xy, start, lo_x, lo_y, cell, nx, ny, queries, gate):
     return out
 
 
-@_jit
+@jit
 def point_to_line(rotated, x0, x1, gate, qn, start, lo_x, lo_y, cell, nx, ny, huber):
     """Point-to-line residuals and Jacobian of :meth:`ReferenceMap._linearise`.
 

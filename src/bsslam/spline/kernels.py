@@ -20,15 +20,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
-# cache=True: compiled once per machine into __pycache__, not at every start (~1 s each).
-# error_model="numpy": x/0 gives ±inf or NaN as in numpy (the searches rely on it: a ray
-# parallel to its curve has ỹ' = 0), where Python semantics would raise.
-_jit = njit(cache=True, nogil=True, error_model="numpy")
+from bsslam.compiled import jit
 
 
-@_jit
+
+@jit
 def _piece_of(piece_lo, first, last, t):
     """Global index of the piece of a curve (pieces first … last) holding t: the last piece
     starting at or before t (t inside the curve's domain), as numpy's
@@ -43,7 +40,7 @@ def _piece_of(piece_lo, first, last, t):
     return a - 1
 
 
-@_jit
+@jit
 def _value_and_slope(coeffs_t, piece, u):
     """Point (x, y) and first derivative (x', y') of a piece at local u: Horner on both at
     once, the operations of ``batch._value_and_slope``."""
@@ -59,7 +56,7 @@ def _value_and_slope(coeffs_t, piece, u):
     return vx, vy, dx, dy
 
 
-@_jit
+@jit
 def ray_newton(coeffs_t, piece_lo, piece_start, lo, hi, curve, ox, oy, cos, sin, t0, max_range,
                max_newton, step_tolerance, root_tolerance):
     """Newton ``t ← t − ỹ/ỹ'`` on each ray's own curve from finite guesses ``t0`` (k,),
@@ -108,7 +105,7 @@ def ray_newton(coeffs_t, piece_lo, piece_start, lo, hi, curve, ox, oy, cos, sin,
     return ok, out
 
 
-@_jit
+@jit
 def _value_slope_curvature(coeffs_t, piece, u):
     """Point, first and second derivative (x, y each) of a piece at local u: the Horner of
     ``batch._value_slope_curvature``, operation for operation."""
@@ -139,7 +136,7 @@ def _value_slope_curvature(coeffs_t, piece, u):
     return vx * u + c0x, vy * u + c0y, dx * u + vx, dy * u + vy, sxx, syy
 
 
-@_jit
+@jit
 def _point(coeffs_t, piece, u):
     """Point (x, y) of a piece at local u: ``batch._horner_points``' operations."""
     n = coeffs_t.shape[0]
@@ -151,7 +148,7 @@ def _point(coeffs_t, piece, u):
     return vx * u + coeffs_t[0, 0, piece], vy * u + coeffs_t[0, 1, piece]
 
 
-@_jit
+@jit
 def closest_newton(coeffs_t, piece_lo, piece_start, lo, hi, curve, qx, qy, t0, max_newton, step_tolerance):
     """Clamped, downhill-safeguarded Newton on f(t) = (s(t) − q)·s'(t) from K starts ``t0``
     (finite, on their curves ``curve``) for query points (qx, qy) (m): the best parameter
@@ -209,7 +206,7 @@ def closest_newton(coeffs_t, piece_lo, piece_start, lo, hi, curve, qx, qy, t0, m
     return t_best, d2_best
 
 
-@_jit
+@jit
 def sampled_minima(coeffs_t, control_points, window, piece_lo, width, piece_start, lo, hi, curve, qx, qy,
                    sample_step, samples_per_span, max_samples):
     """Starts for closest points: each query's curve sampled as one curve's

@@ -1,0 +1,21 @@
+"""The one way bsslam compiles its inner loops: ``@jit`` (numba).
+
+The hot paths ask many small questions per scan (tens of beams against a few curves, a few
+hundred points against a grid). As whole-array numpy each step of such a question is a
+dozen calls of a few microseconds, whatever its size; compiled loops cost less than one of
+those calls. The options are chosen so that a compiled loop gives numpy's numbers:
+
+* strict IEEE arithmetic (numba's default: no fast-math, no fused multiply-add), so a loop
+  doing numpy's operations in numpy's order is bit-identical to it;
+* ``error_model="numpy"``: x/0 gives ±inf or NaN as in numpy (the searches rely on it: a
+  ray parallel to its curve has a zero slope), where Python semantics would raise;
+* ``cache=True``: compiled once per machine into the package's ``__pycache__``, not at every
+  start (about a second per kernel, on the first run only);
+* ``nogil=True``: callers may run them from threads.
+"""
+
+from __future__ import annotations
+
+from numba import njit
+
+jit = njit(cache=True, nogil=True, error_model="numpy")
