@@ -25,63 +25,42 @@ def gate_threshold(probability: float) -> float:
     return float(chi2.ppf(probability, 1))
 
 
-def innovation_variances(P: np.ndarray | CovarianceColumns, cols: np.ndarray, H_c: np.ndarray,
+def innovation_variances(P: np.ndarray | PriorCovariance, cols: np.ndarray, H_c: np.ndarray,
                          range_variance: float) -> np.ndarray:
     """(m,) diagonal of S = H P Hᵀ + R, for per-beam gating (m²); ``P`` is the (n, n)
-    covariance or its :class:`CovarianceColumns`."""
-    HP = H_c @ _columns_of(P).block(cols)
+    covariance or its :class:`PriorCovariance`."""
+    HP = H_c @ _prior_of(P).block(cols, cols)
     return np.einsum("ij,ij->i", HP, H_c) + range_variance
 
 
-class CovarianceColumns:
-    """``P[:, cols]`` of a covariance that does not change, for the repeated requests of one
-    iterated update: gathering P's entries is the largest cost of a gain after the
-    covariance update itself. Each state index is gathered once, as a row of P (P is
-    symmetric, and its rows are contiguous); a request is then served from those rows.
+class PriorCovariance:
+    """The prior covariance of one (iterated) update, as the gain reads it: small blocks
+    ``P[rows][:, cols]`` and products ``P[:, cols] v``, never all of P nor n × c columns of it.
+
+    The filter's :class:`JointState` keeps P = base − B G Bᵀ with a pending term; a block
+    costs rows·cols·a and a product n·(c + a) there, where gathering the columns P[:, cols]
+    would cost n·c·a (the pending term's product with each column): at n = 1000 and a = 256
+    that gather was most of the gain's time.
 
     Args:
-        source: the (n, n) symmetric covariance, or a :class:`JointState` (its rows are
-            then gathered without folding its pending update); must not change while this
-            object is used.
+        source: the (n, n) symmetric covariance, or a :class:`JointState` (read without
+            folding its pending update); must not change while this object is used.
     """
 
     def __init__(self, source: np.ndarray | JointState):
-        self._gather = source.rows if isinstance(source, JointState) else (lambda rows: source[rows])
-        n = source.size if isinstance(source, JointState) else source.shape[0]
-        self._slot = np.full(n, -1, dtype=np.intp)   # row of _rows holding each state index
-        self._rows = np.empty((64, n))                 # P[i, :] of the indices gathered so far
-        self._count = 0
-        self._last: tuple[np.ndarray, np.ndarray] | None = None
+        self._source = source
 
-    def _slots(self, cols: np.ndarray) -> np.ndarray:
-        slot = self._slot[cols]
-        missing = cols[slot < 0]
-        if missing.size:
-            new = np.unique(missing)
-            end = self._count + new.shape[0]
-            if end > self._rows.shape[0]:
-                grown = np.empty((max(2 * self._rows.shape[0], end), self._rows.shape[1]))
-                grown[: self._count] = self._rows[: self._count]
-                self._rows = grown
-            self._rows[self._count : end] = self._gather(new)
-            self._slot[new] = np.arange(self._count, end)
-            self._count = end
-            slot = self._slot[cols]
-        return slot
+    def block(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """(r, c) ``P[rows][:, cols]`` (a new array)."""
+        if isinstance(self._source, JointState):
+            return self._source.block(rows, cols)
+        return self._source[np.ix_(rows, cols)]
 
-    def get(self, cols: np.ndarray) -> np.ndarray:
-        """(n, c) ``P[:, cols]`` (a transposed view of gathered rows; do not modify it)."""
-        if self._last is not None and np.array_equal(self._last[0], cols):
-            return self._last[1]
-        slot = self._slots(cols)   # may replace self._rows: index it after
-        out = self._rows[slot].T
-        self._last = (cols.copy(), out)
-        return out
-
-    def block(self, cols: np.ndarray) -> np.ndarray:
-        """(c, c) ``P[cols][:, cols]``."""
-        slot = self._slots(cols)
-        return self._rows[slot][:, cols]
+    def times(self, cols: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """(n,) ``P[:, cols] @ v`` for (c,) ``v``."""
+        if isinstance(self._source, JointState):
+            return self._source.columns_times(cols, v)
+        return self._source[:, cols] @ v
 
 
 class StackedGain:
@@ -89,18 +68,17 @@ class StackedGain:
     correction ``P Hᵀ S⁻¹ ν`` for any ν (the iterated EKF reuses it) and the covariance update.
 
     Args:
-        P: (n, n) prior covariance, or its :class:`CovarianceColumns`.
+        P: (n, n) prior covariance, or its :class:`PriorCovariance`.
         cols: (c,) state indices that ``H`` touches.
         H_c: (m, c) the Jacobian restricted to ``cols``.
         range_variance: R of one beam (m²).
     """
 
-    def __init__(self, P: np.ndarray | CovarianceColumns, cols: np.ndarray, H_c: np.ndarray,
+    def __init__(self, P: np.ndarray | PriorCovariance, cols: np.ndarray, H_c: np.ndarray,
                  range_variance: float):
         self.cols = cols
-        # (n, c): the only columns of P read (read only)
-        self.P_c = _columns_of(P).get(cols)
-        S = (H_c @ self.P_c[cols]) @ H_c.T
+        self._prior = _prior_of(P)
+        S = (H_c @ self._prior.block(cols, cols)) @ H_c.T
         S.flat[:: S.shape[0] + 1] += range_variance     # the diagonal, without index arrays
         self.S_diag = S.diagonal().copy()
         # LAPACK directly: the scipy.linalg front ends cost more than these small solves
@@ -113,17 +91,16 @@ class StackedGain:
     def correction(self, innovation: np.ndarray) -> tuple[np.ndarray, float]:
         """(dx (n,), NIS): the mean correction P Hᵀ S⁻¹ ν and ν S⁻¹ ν."""
         w = _lower_solve(self.L, innovation)
-        return self.P_c @ (self.Y.T @ w), float(w @ w)
+        return self._prior.times(self.cols, self.Y.T @ w), float(w @ w)
 
-    def posterior_variances(self, P: np.ndarray | CovarianceColumns, cols: np.ndarray, H_c: np.ndarray,
+    def posterior_variances(self, P: np.ndarray | PriorCovariance, cols: np.ndarray, H_c: np.ndarray,
                             range_variance: float) -> np.ndarray:
         """(m,) variances H P⁺ Hᵀ + R of beams linearised on ``cols`` under the posterior
         P⁺ = P − P Hᵀ S⁻¹ H P of this gain, without forming P⁺ beyond those columns.
-        ``P`` is the prior (n, n) or its :class:`CovarianceColumns`."""
-        P = _columns_of(P)
-        P_cg, P_cc = P.get(self.cols)[cols], P.block(cols)
-        Z = P_cg @ self.Y.T
-        P_post = P_cc - Z @ Z.T
+        ``P`` is the prior (n, n) or its :class:`PriorCovariance`."""
+        P = _prior_of(P)
+        Z = P.block(cols, self.cols) @ self.Y.T
+        P_post = P.block(cols, cols) - Z @ Z.T
         return np.einsum("ij,ij->i", H_c @ P_post, H_c) + range_variance
 
     def update_covariance(self, state: JointState) -> None:
@@ -133,15 +110,15 @@ class StackedGain:
         if Y.shape[0] > Y.shape[1]:
             qr_, _, _, _ = dgeqrf(Y)                   # YᵀY = R_yᵀ R_y
             Y = np.triu(qr_[: Y.shape[1]])
-        state.subtract_column_update(self.cols, Y.T)   # Z = P_c Yᵀ
+        state.subtract_column_update(self.cols, Y.T)   # Z = P[:, cols] Yᵀ
         # exactly known components (zero variance, e.g. a fixed start) stay 0; negative is broken
         if np.any(np.diag(state.pose_covariance) < -1e-12):
             raise FilterError("pose covariance lost positive definiteness in the update")
 
 
-def _columns_of(P: np.ndarray | CovarianceColumns) -> CovarianceColumns:
-    """``P`` itself when it is a :class:`CovarianceColumns` already, else its columns."""
-    return P if isinstance(P, CovarianceColumns) else CovarianceColumns(P)
+def _prior_of(P: np.ndarray | PriorCovariance) -> PriorCovariance:
+    """``P`` itself when it is a :class:`PriorCovariance` already, else a view of it."""
+    return P if isinstance(P, PriorCovariance) else PriorCovariance(P)
 
 
 def _lower_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
