@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 from hypothesis import given, settings
+from fit_oracle import _surely_too_noisy
+from fit_oracle import _surviving_counts as numpy_surviving_counts
 from hypothesis import strategies as st
 
 from bsslam.spline import collocation_matrix
 from bsslam.spline.basis import basis_functions
-from bsslam.spline.fit import _distinct_sorted, _surely_too_noisy, iter_span_counts, least_squares_operator
+from bsslam.spline.fit import _distinct_sorted, _surviving_counts, iter_span_counts, least_squares_operator
 from bsslam.spline.knots import clamped_knots_with_spans, span_count
 
 SETTINGS = settings(max_examples=60, deadline=None)
@@ -24,7 +26,8 @@ def _clustered_params(rng, m):
 @SETTINGS
 @given(degree=st.integers(1, 4), m=st.integers(8, 80), spans=st.integers(1, 20), seed=st.integers(0, 2**32 - 1))
 def test_screen_never_rejects_below_the_exact_gain(degree, m, spans, seed):
-    """For every control point alone, the screen rejects a limit only if the exact squared
+    """(The numpy form of the screen, which the compiled search matches bit for bit: see
+    test_compiled_search_is_the_numpy_search.) For every control point alone, the screen rejects a limit only if the exact squared
     gain (A⁻¹)_cc exceeds it: at a limit just below the exact gain it may reject, at a limit
     just above it must not."""
     t = _clustered_params(np.random.default_rng(seed), m)
@@ -71,8 +74,6 @@ def test_search_keeps_every_count_the_exact_test_accepts(degree, m, spacing, gai
 def test_several_runs_at_once_give_each_runs_counts(degree, sizes, spacing, gain, tiny, seed):
     """The search over several runs in one pass keeps, for each run, exactly the counts
     its own search keeps (also when a run's knot vectors have empty spans)."""
-    from bsslam.spline.fit import _surviving_counts
-
     rng = np.random.default_rng(seed)
     runs = []
     for r, m in enumerate(sizes):
@@ -92,3 +93,34 @@ def test_several_runs_at_once_give_each_runs_counts(degree, sizes, spacing, gain
     got = _surviving_counts(runs, degree, gain)
     for (t, distinct, mult, most), counts in zip(runs, got):
         assert counts.tolist() == list(iter_span_counts(t, distinct, mult, degree, most, gain))
+
+
+@SETTINGS
+@given(degree=st.integers(1, 4), sizes=st.lists(st.integers(4, 80), min_size=1, max_size=4),
+       spacing=st.floats(0.01, 0.5), gain=st.sampled_from([None, 1.2, 1.5, 3.0, 10.0]),
+       tiny=st.booleans(), seed=st.integers(0, 2**32 - 1))
+def test_compiled_search_is_the_numpy_search(degree, sizes, spacing, gain, tiny, seed):
+    """The compiled search (fit_kernels.span_survivors) keeps exactly the counts of its numpy
+    form (the oracle), run by run, with repeated parameters and with empty spans: it does the
+    same floating-point operations in the same order, so even counts at the screen's limit
+    agree."""
+    rng = np.random.default_rng(seed)
+    runs = []
+    for r, m in enumerate(sizes):
+        if tiny and r == 0:   # parameters a few ulps apart, far from 0: empty spans
+            t = 1.0 + np.arange(m) * np.spacing(1.0)
+        else:
+            t = _clustered_params(rng, m) + rng.uniform(-1, 1)
+        distinct, mult, _ = _distinct_sorted(t)
+        length = float(t[-1] - t[0])
+        if not length > 0:
+            continue
+        most = min(span_count(length, spacing if not (tiny and r == 0) else length / 50), distinct.shape[0] - degree)
+        if most >= 1:
+            runs.append((t, distinct, mult, most))
+    if not runs:
+        return
+    got = _surviving_counts(runs, degree, gain)
+    want = numpy_surviving_counts(runs, degree, gain)
+    for g, w in zip(got, want, strict=True):
+        assert g.tolist() == w.tolist()
