@@ -153,11 +153,22 @@ class JointState:
     def columns_times(self, cols: np.ndarray, v: np.ndarray) -> np.ndarray:
         """(n,) ``P[:, cols] @ v`` for (c,) ``v``: base[:, cols] v − B (G (B[cols]ᵀ v)), so
         the pending term costs n·a, not the n·c·a of gathering the columns first."""
-        out = self.base[cols].T @ v        # base is symmetric: its rows are its columns
-        if self._a:
-            a = self._a
-            out -= self._B[: self.size, :a] @ (self._G[:a, :a] @ (self._B[cols, :a].T @ v))
+        out = v @ self.base[cols]          # base is symmetric: its rows are its columns
+        out -= self.pending_columns_times(cols, v)
         return out
+
+    def base_rows(self, rows: np.ndarray) -> np.ndarray:
+        """(r, n) ``base[rows]`` (a new array): P's rows less the pending term, which
+        :meth:`pending_columns_times` supplies."""
+        return self.base[rows]
+
+    def pending_columns_times(self, cols: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """(n,) the pending term's part of ``P[:, cols] @ v``, B (G (B[cols]ᵀ v)) (zeros when
+        nothing is pending)."""
+        a = self._a
+        if not a:
+            return np.zeros(self.size)
+        return self._B[: self.size, :a] @ (self._G[:a, :a] @ (self._B[cols, :a].T @ v))
 
     def block(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """(r, c) ``P[np.ix_(rows, cols)]`` (a new array)."""
