@@ -119,29 +119,23 @@ def associate(observed: CurveBatch, mapped: CurveBatch, feature_ids: np.ndarray,
     obs = (observed.coeffs_t, to.piece_lo, to.piece_start, to.lo, to.hi)
     maps = (mapped.coeffs_t, tm.piece_lo, tm.piece_start, tm.lo, tm.hi)
     # bounding boxes, then control points within the gate; the observed ends of those pairs
-    io, jf, end_points, curves = kernels.gated_pairs(observed.control_points, to.cp_start, *obs,
-                                                     mapped.control_points, tm.cp_start, candidates,
-                                                     _per_pair(gate_m, k, candidates.size))
-    if io.size == 0:
+    pairs, end_points, curves = kernels.gated_pairs(observed.control_points, to.cp_start, *obs,
+                                                    mapped.control_points, tm.cp_start, candidates,
+                                                    _per_pair(gate_m, k, candidates.size))
+    if curves.size == 0:
         return result
     # Closest map points to both ends of each observed spline: (2P,) parameters, pair by pair.
     t_ends = closest_points_batch(mapped, curves, end_points)[0]
-    at_lo, at_hi, requery, map_end, requery_observed = kernels.map_end_requeries(t_ends, io, *maps, curves)
-    u_ends = np.empty(t_ends.shape)
-    u_ends[0::2], u_ends[1::2] = to.lo.take(io), to.hi.take(io)
-    if requery.size:
-        # the observed end lies beyond the map spline: the correspondence starts at the map
-        # spline's end instead, at the observed point closest to it
-        u_ends[requery] = closest_points_batch(observed, requery_observed, map_end)[0]
+    # where that is the map spline's end, the correspondence starts there instead, at the
+    # observed point closest to it
+    map_end, requeried = kernels.map_end_queries(t_ends, pairs, curves, *maps)
+    u_requeried = closest_points_batch(observed, requeried, map_end)[0] if requeried.size else np.empty(0)
     # opposite orientation (far side of a wall) or no overlap, then the distance test
-    accepted = kernels.accepted_pairs(u_ends, t_ends, io, jf, curves, _per_pair(match_distance_m, k, candidates.size),
-                                      *obs, *maps)
-    if accepted.size == 0:
-        return result
+    values, labels, at_end = kernels.accepted_pairs(t_ends, u_requeried, pairs, curves,
+                                                    np.asarray(feature_ids, dtype=np.intp),
+                                                    _per_pair(match_distance_m, k, candidates.size), *obs, *maps)
     # one Match per accepted pair (a handful per scan), already in each curve's u_ini order
-    ends = np.column_stack([u_ends.reshape(-1, 2).take(accepted, axis=0), t_ends.reshape(-1, 2).take(accepted, axis=0)])
-    for i, fid, (u_ini, u_fin, t_ini, t_fin), lo_end, hi_end in zip(
-            io.take(accepted).tolist(), np.asarray(feature_ids).take(candidates.take(jf.take(accepted))).tolist(),
-            ends.tolist(), at_lo.take(accepted).tolist(), at_hi.take(accepted).tolist()):
+    for (i, fid), (u_ini, u_fin, t_ini, t_fin), (lo_end, hi_end) in zip(labels.tolist(), values.tolist(),
+                                                                        at_end.tolist()):
         result[i].append(Match(fid, u_ini, u_fin, t_ini, t_fin, at_lo=lo_end, at_hi=hi_end))
     return result

@@ -56,6 +56,12 @@ def control_point_gaps(cp_a, cp_start_a, cp_b, cp_start_b, ia, ib):
 
 
 @jit
+def _point(coeffs_t, piece_lo, piece_start, lo, hi, c, t):
+    """Point (x, y) of curve c at parameter t (m), clamped into its domain."""
+    return point_at(coeffs_t, piece_lo, piece_start[c], piece_start[c + 1] - 1, lo[c], hi[c], t)
+
+
+@jit
 def gated_pairs(obs_cp, obs_cp_start, obs_coeffs_t, obs_piece_lo, obs_piece_start, obs_lo, obs_hi,
                 map_cp, map_cp_start, candidates, gates):
     """The (observed, candidate) pairs that pass the gates, and the observed ends to query.
@@ -72,10 +78,11 @@ def gated_pairs(obs_cp, obs_cp_start, obs_coeffs_t, obs_piece_lo, obs_piece_star
         gates: (k, F) gate of each pair (m).
 
     Returns:
-        ``io`` (P,) observed curve and ``jf`` (P,) candidate position of each passing
-        pair, observed-major (``np.nonzero``'s order); ``ends`` (2P, 2) the observed curve's
+        ``pairs`` (2, P): observed curve and candidate position of each passing pair,
+        observed-major (``np.nonzero``'s order); ``ends`` (2P, 2) the observed curve's
         points at its domain's lower and upper end, pair by pair (m); ``curves`` (2P,) the
-        map curve of each end (the closest-point queries).
+        map curve of each end (the closest-point queries). Few arrays: each returned one
+        costs about a microsecond.
     """
     k, f = obs_cp_start.shape[0] - 1, candidates.shape[0]
     ob = np.empty((k, 4))
@@ -85,8 +92,7 @@ def gated_pairs(obs_cp, obs_cp_start, obs_coeffs_t, obs_piece_lo, obs_piece_star
     for j in range(f):
         c = candidates[j]
         mb[j, 0], mb[j, 1], mb[j, 2], mb[j, 3] = bbox(map_cp, map_cp_start[c], map_cp_start[c + 1])
-    io = np.empty(k * f, dtype=np.intp)
-    jf = np.empty(k * f, dtype=np.intp)
+    pairs = np.empty((2, k * f), dtype=np.intp)
     n = 0
     for i in range(k):
         for j in range(f):
@@ -99,19 +105,19 @@ def gated_pairs(obs_cp, obs_cp_start, obs_coeffs_t, obs_piece_lo, obs_piece_star
                                            map_cp_start[c + 1]))
             if not gap <= g:
                 continue
-            io[n] = i
-            jf[n] = j
+            pairs[0, n] = i
+            pairs[1, n] = j
             n += 1
     ends = np.empty((2 * n, 2))
     curves = np.empty(2 * n, dtype=np.intp)
     for p in range(n):
-        i = io[p]
+        i = pairs[0, p]
         for e in range(2):
             t = obs_lo[i] if e == 0 else obs_hi[i]
-            ends[2 * p + e, 0], ends[2 * p + e, 1] = point_at(obs_coeffs_t, obs_piece_lo, obs_piece_start, obs_lo,
-                                                              obs_hi, i, t)
-            curves[2 * p + e] = candidates[jf[p]]
-    return io[:n], jf[:n], ends, curves
+            ends[2 * p + e, 0], ends[2 * p + e, 1] = _point(obs_coeffs_t, obs_piece_lo, obs_piece_start, obs_lo,
+                                                            obs_hi, i, t)
+            curves[2 * p + e] = candidates[pairs[1, p]]
+    return pairs[:, :n].copy(), ends, curves
 
 
 @jit
@@ -126,75 +132,93 @@ def _at_ends(t, lo, hi):
 
 
 @jit
-def map_end_requeries(t_ends, io, map_coeffs_t, map_piece_lo, map_piece_start, map_lo, map_hi, curves):
-    """Where the closest map point to an observed end is a map spline's end.
+def map_end_queries(t_ends, pairs, curves, map_coeffs_t, map_piece_lo, map_piece_start, map_lo, map_hi):
+    """Where the closest map point to an observed end is its map spline's end: the map
+    point there, to look up the observed point closest to it instead.
 
     Args:
         t_ends: (2P,) map parameter closest to each observed end (m), pair by pair.
-        io: (P,) observed curve of each pair; curves: (2P,) map curve of each end.
+        pairs: (2, P) observed curve (and candidate) of each pair; curves: (2P,) map curve
+            of each end.
         map_*: the map curves' coefficients, pieces and domains.
 
     Returns:
-        ``at_lo`` (P,): the pair's first end is at its map spline's lower end; ``at_hi``
-        (P,): its second end at the upper end; ``requery`` (R,) the ends (indices into
-        2P) at either end of their map spline, in order; ``points`` (R, 2) the map point
-        there (m); ``observed`` (R,) its observed curve (the closest-point queries back on
-        the observed splines).
+        ``points`` (R, 2) the map end points (m) and ``observed`` (R,) their observed
+        curves, for the R ends at either end of their map spline, in order of the ends.
     """
     m = t_ends.shape[0]
-    at_lo = np.empty(m // 2, dtype=np.bool_)
-    at_hi = np.empty(m // 2, dtype=np.bool_)
-    requery = np.empty(m, dtype=np.intp)
+    at = np.empty(m, dtype=np.intp)
     r = 0
     for e in range(m):
         c = curves[e]
         low, high = _at_ends(t_ends[e], map_lo[c], map_hi[c])
-        if e % 2 == 0:
-            at_lo[e // 2] = low
-        else:
-            at_hi[e // 2] = high
         if low or high:
-            requery[r] = e
+            at[r] = e
             r += 1
     points = np.empty((r, 2))
     observed = np.empty(r, dtype=np.intp)
     for j in range(r):
-        e = requery[j]
-        points[j, 0], points[j, 1] = point_at(map_coeffs_t, map_piece_lo, map_piece_start, map_lo, map_hi,
-                                              curves[e], t_ends[e])
-        observed[j] = io[e // 2]
-    return at_lo, at_hi, requery[:r], points, observed
+        e = at[j]
+        points[j, 0], points[j, 1] = _point(map_coeffs_t, map_piece_lo, map_piece_start, map_lo, map_hi, curves[e],
+                                            t_ends[e])
+        observed[j] = pairs[0, e // 2]
+    return points, observed
 
 
 @jit
-def accepted_pairs(u_ends, t_ends, io, jf, curves, deltas, obs_coeffs_t, obs_piece_lo, obs_piece_start, obs_lo,
-                   obs_hi, map_coeffs_t, map_piece_lo, map_piece_start, map_lo, map_hi):
-    """The pairs that match: ordered alike (``t`` and ``u`` both increase from the first
-    end to the second: not the far side of a wall, and some overlap) and both ends'
-    observed and map points within ``deltas[io, jf]`` (m).
+def accepted_pairs(t_ends, u_requeried, pairs, curves, feature_ids, deltas, obs_coeffs_t, obs_piece_lo,
+                   obs_piece_start, obs_lo, obs_hi, map_coeffs_t, map_piece_lo, map_piece_start, map_lo, map_hi):
+    """The pairs that match, with their parameters.
+
+    Each pair's observed interval runs between its observed spline's ends, except where an
+    end's closest map point is a map spline end: there it is the observed parameter closest
+    to that map end (``u_requeried``, (R,), in the order of :func:`map_end_queries`). A
+    pair matches when it is ordered alike (``t`` and ``u`` both increase from the first end
+    to the second: not the far side of a wall, and some overlap) and both ends' observed
+    and map points are within ``deltas[i, j]`` (m).
 
     Args:
-        u_ends, t_ends: (2P,) observed and map parameters of each pair's two ends (m).
-        io, jf: (P,) observed curve and candidate position of each pair; curves: (2P,)
-            map curve of each end; deltas: (k, F) match distance of each pair (m).
+        t_ends: (2P,) map parameters of each pair's two ends (m).
+        pairs: (2, P) observed curve i and candidate position j of each pair; curves: (2P,)
+            map curve of each end; feature_ids: (C,) id of each map curve.
+        deltas: (k, F) match distance of each pair (m).
 
     Returns:
-        (A,) the accepted pairs, by observed curve then by u of their first end (stably:
-        ties keep the pairs' order, as Python's sort of each curve's matches did).
+        The A accepted pairs, by observed curve then by u of their first end (stably: ties
+        keep the pairs' order, as sorting each curve's matches did): ``values`` (A, 4)
+        ``u_ini, u_fin, t_ini, t_fin`` (m); ``labels`` (A, 2) observed curve and feature
+        id; ``at_end`` (A, 2) whether the first end is the map spline's lower end and the
+        second its upper end.
     """
-    n = io.shape[0]
+    n = pairs.shape[1]
+    u_ends = np.empty(2 * n)
+    at_end = np.empty((n, 2), dtype=np.bool_)
+    r = 0
+    for e in range(2 * n):
+        i, c = pairs[0, e // 2], curves[e]
+        low, high = _at_ends(t_ends[e], map_lo[c], map_hi[c])
+        if e % 2 == 0:
+            at_end[e // 2, 0] = low
+        else:
+            at_end[e // 2, 1] = high
+        if low or high:
+            u_ends[e] = u_requeried[r]
+            r += 1
+        else:
+            u_ends[e] = obs_lo[i] if e % 2 == 0 else obs_hi[i]
     order = np.empty(n, dtype=np.intp)
     a = 0
     for p in range(n):
+        i = pairs[0, p]
         u0, u1, t0, t1 = u_ends[2 * p], u_ends[2 * p + 1], t_ends[2 * p], t_ends[2 * p + 1]
         if not (t1 > t0 and u1 > u0):
             continue
-        delta = deltas[io[p], jf[p]]
+        delta = deltas[i, pairs[1, p]]
         ok = True
         for e in range(2):
-            ox, oy = point_at(obs_coeffs_t, obs_piece_lo, obs_piece_start, obs_lo, obs_hi, io[p], u_ends[2 * p + e])
-            mx, my = point_at(map_coeffs_t, map_piece_lo, map_piece_start, map_lo, map_hi, curves[2 * p + e],
-                              t_ends[2 * p + e])
+            ox, oy = _point(obs_coeffs_t, obs_piece_lo, obs_piece_start, obs_lo, obs_hi, i, u_ends[2 * p + e])
+            mx, my = _point(map_coeffs_t, map_piece_lo, map_piece_start, map_lo, map_hi, curves[2 * p + e],
+                            t_ends[2 * p + e])
             # both within δ is max(…) ≤ δ, NaN failing either way
             if not math.hypot(ox - mx, oy - my) <= delta:
                 ok = False
@@ -203,9 +227,18 @@ def accepted_pairs(u_ends, t_ends, io, jf, curves, deltas, obs_coeffs_t, obs_pie
         # insertion into the observed curve's run, after any equal u (stable); pairs
         # come observed-major, so the run is the tail of ``order``
         j = a
-        while j > 0 and io[order[j - 1]] == io[p] and u_ends[2 * order[j - 1]] > u0:
+        while j > 0 and pairs[0, order[j - 1]] == i and u_ends[2 * order[j - 1]] > u0:
             order[j] = order[j - 1]
             j -= 1
         order[j] = p
         a += 1
-    return order[:a]
+    values = np.empty((a, 4))
+    labels = np.empty((a, 2), dtype=np.intp)
+    flags = np.empty((a, 2), dtype=np.bool_)
+    for q in range(a):
+        p = order[q]
+        values[q, 0], values[q, 1] = u_ends[2 * p], u_ends[2 * p + 1]
+        values[q, 2], values[q, 3] = t_ends[2 * p], t_ends[2 * p + 1]
+        labels[q, 0], labels[q, 1] = pairs[0, p], feature_ids[curves[2 * p]]
+        flags[q, 0], flags[q, 1] = at_end[p, 0], at_end[p, 1]
+    return values, labels, flags

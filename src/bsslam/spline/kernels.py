@@ -308,13 +308,15 @@ def sampled_minima(coeffs_t, control_points, window, piece_lo, width, piece_star
 
 
 @jit
-def point_at(coeffs_t, piece_lo, piece_start, lo, hi, c, t):
-    """Point (x, y) of curve c at parameter t (m), clamped into its domain: the operations
-    of ``CurveBatch.evaluate`` for one parameter (np.minimum/np.maximum keep a NaN, which
-    then gives a NaN point on whichever piece)."""
+def point_at(coeffs_t, piece_lo, first, last, lo, hi, t):
+    """Point (x, y) at parameter t (m) of the curve of pieces first … last and domain
+    [lo, hi], t clamped into it: the operations of ``CurveBatch.evaluate`` for one
+    parameter (np.minimum/np.maximum keep a NaN, which then gives a NaN point on whichever
+    piece). The curve comes as scalars: every array argument of a call between compiled
+    functions costs a reference count up and down (tens of ns each, more than the point)."""
     if not math.isnan(t):
-        t = min(max(t, lo[c]), hi[c])
-    piece = _piece_of(piece_lo, piece_start[c], piece_start[c + 1] - 1, t)
+        t = min(max(t, lo), hi)
+    piece = _piece_of(piece_lo, first, last, t)
     return _point(coeffs_t, piece, t - piece_lo[piece])
 
 
@@ -323,7 +325,9 @@ def evaluate_points(coeffs_t, piece_lo, piece_start, lo, hi, curve, t):
     """(m, 2) points (m) of curves ``curve`` (m,) at parameters t (m,) (clamped)."""
     out = np.empty((t.shape[0], 2))
     for i in range(t.shape[0]):
-        out[i, 0], out[i, 1] = point_at(coeffs_t, piece_lo, piece_start, lo, hi, curve[i], t[i])
+        c = curve[i]
+        out[i, 0], out[i, 1] = point_at(coeffs_t, piece_lo, piece_start[c], piece_start[c + 1] - 1, lo[c], hi[c],
+                                        t[i])
     return out
 
 
