@@ -129,3 +129,20 @@ def test_horner_rows_and_bracket_refinement_against_numpy(degree, seed):
     scale = np.sum(np.abs(coeffs[pair]) * 2.0 ** np.arange(degree + 1), axis=1)
     residual = np.abs(np.polynomial.polynomial.polyval(root, coeffs[pair].T, tensor=False))
     assert np.all(residual <= 1e-12 * scale), residual.max()
+
+
+@SETTINGS
+@given(cs=st.lists(curves(), min_size=1, max_size=5), seed=st.integers(0, 2**32 - 1))
+def test_bboxes_against_reduceat(cs, seed):
+    """The compiled boxes are numpy's min / max per curve, NaN and ±inf included."""
+    rng = np.random.default_rng(seed)
+    batch = batch_of(cs)
+    cp = batch.control_points.copy()
+    bad = rng.integers(0, cp.shape[0], 3)
+    cp[bad[0], rng.integers(2)] = np.nan
+    cp[bad[1], rng.integers(2)] = np.inf
+    cp[bad[2], rng.integers(2)] = -np.inf
+    for points in (batch.control_points, cp):
+        starts = batch.table.cp_start[:-1]
+        expected = np.hstack([np.minimum.reduceat(points, starts, axis=0), np.maximum.reduceat(points, starts, axis=0)])
+        _assert_same(batch.table.bboxes(points), expected)

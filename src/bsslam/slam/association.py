@@ -7,8 +7,11 @@ spline's end is a candidate for extending it.
 
 All pairs of a scan are decided together: the observed and the map splines come as
 :class:`~bsslam.spline.batch.CurveBatch` es, and each step of Fig. 6 (gates, closest
-points of the observed ends, re-query at a map end, the final distance test) is one
-vectorised computation over every (observed, map) pair, not a loop over pairs.
+points of the observed ends, re-query at a map end, the final distance test) is one call
+over every (observed, map) pair, not a Python loop over pairs. The closest points are the
+batched searches of :mod:`bsslam.spline.batch`; the steps between them are compiled loops
+over the pairs (:mod:`bsslam.slam.kernels`), bit-identical to the numpy form they replaced
+and a fraction of its numpy call overhead.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bsslam.slam import kernels
 from bsslam.spline.batch import CurveBatch, closest_points_batch
 
 
@@ -46,24 +50,11 @@ class Match:
         return self.t_ini + (np.asarray(u) - self.u_ini) * scale
 
 
-def _ragged(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For groups of ``counts`` (k,) items: each item's group (Σ,) and its position in it (Σ,)."""
-    owner = np.repeat(np.arange(counts.shape[0]), counts)
-    return owner, np.arange(owner.shape[0]) - np.repeat(np.cumsum(counts) - counts, counts)
-
-
 def control_point_gaps(a: CurveBatch, b: CurveBatch, ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
     """(k,) smallest distance between a control point of curve ``ia[j]`` of ``a`` and one of
     curve ``ib[j]`` of ``b`` (m), for k pairs."""
-    ta, tb = a.table, b.table
-    na = ta.cp_start[ia + 1] - ta.cp_start[ia]
-    nb = tb.cp_start[ib + 1] - tb.cp_start[ib]
-    pair, local = _ragged(na * nb)                 # every (point of a, point of b) of every pair
-    ra = ta.cp_start[ia][pair] + local // nb[pair]
-    rb = tb.cp_start[ib][pair] + local % nb[pair]
-    d = a.control_points[ra] - b.control_points[rb]
-    d2 = np.einsum("ij,ij->i", d, d)
-    return np.sqrt(np.minimum.reduceat(d2, np.cumsum(na * nb) - na * nb))
+    return kernels.control_point_gaps(a.control_points, a.table.cp_start, b.control_points, b.table.cp_start,
+                                      np.asarray(ia, dtype=np.intp), np.asarray(ib, dtype=np.intp))
 
 
 def relative_sigma(pose: np.ndarray, pose_covariance: np.ndarray, points: np.ndarray, cross: np.ndarray,
@@ -93,16 +84,15 @@ def relative_sigma(pose: np.ndarray, pose_covariance: np.ndarray, points: np.nda
     return np.sqrt(np.maximum(own[:, None] - 2.0 * coupled + map_variance[None, :], 0.0))
 
 
-def _at_end(t: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Whether parameters t are at the lower / upper end of domains [lo, hi] (same shapes)."""
-    tol = 1e-6 * np.maximum(1.0, hi - lo)
-    return t <= lo + tol, t >= hi - tol
-
-
 def _per_pair(value, k: int, f: int) -> np.ndarray:
-    """A threshold given as one value, (k,) per observed spline or (k, f) per pair, as (k, f)."""
+    """A threshold given as one value, (k,) per observed spline or (k, f) per pair, as a
+    (k, f) C-contiguous array (the compiled steps read it pair by pair)."""
     a = np.asarray(value, dtype=float)
-    return np.broadcast_to(a[:, None] if a.ndim == 1 else a, (k, f))
+    if a.shape == (k, f):       # the filter's case
+        return np.ascontiguousarray(a)
+    out = np.empty((k, f))
+    out[...] = a[:, None] if a.ndim == 1 else a
+    return out
 
 
 def associate(observed: CurveBatch, mapped: CurveBatch, feature_ids: np.ndarray, candidates: np.ndarray,
@@ -120,48 +110,32 @@ def associate(observed: CurveBatch, mapped: CurveBatch, feature_ids: np.ndarray,
     Returns:
         for each observed spline, its matches sorted by ``u_ini``.
     """
-    k = observed.table.n_curves
+    to, tm = observed.table, mapped.table
+    k = to.n_curves
     result: list[list[Match]] = [[] for _ in range(k)]
     candidates = np.asarray(candidates, dtype=np.intp)
     if k == 0 or candidates.size == 0:
         return result
-    gates = _per_pair(gate_m, k, candidates.size)
-    deltas = _per_pair(match_distance_m, k, candidates.size)
-    ob = observed.bboxes()[:, None, :]                       # (k, 1, 4)
-    mb = mapped.bboxes()[candidates][None, :, :]             # (1, F, 4)
-    # bounding boxes farther apart than the gate cannot pass it; then the control points
-    near = ~((mb[..., 0] - ob[..., 2] > gates) | (ob[..., 0] - mb[..., 2] > gates) |
-             (mb[..., 1] - ob[..., 3] > gates) | (ob[..., 1] - mb[..., 3] > gates))
-    io, jf = np.nonzero(near)                                # pairs, observed-major
-    im = candidates[jf]
-    if io.size:
-        close = control_point_gaps(observed, mapped, io, im) <= gates[io, jf]
-        io, jf, im = io[close], jf[close], im[close]
-    if io.size == 0:
+    obs = (observed.coeffs_t, to.piece_lo, to.piece_start, to.lo, to.hi)
+    maps = (mapped.coeffs_t, tm.piece_lo, tm.piece_start, tm.lo, tm.hi)
+    # bounding boxes, then control points within the gate; the observed ends of those pairs
+    pairs, end_points, curves = kernels.gated_pairs(observed.control_points, to.cp_start, *obs,
+                                                    mapped.control_points, tm.cp_start, candidates,
+                                                    _per_pair(gate_m, k, candidates.size))
+    if curves.size == 0:
         return result
-    # Closest map points to both ends of each observed spline: (P, 2) parameters.
-    to, tm = observed.table, mapped.table
-    u_ends = np.column_stack([to.lo[io], to.hi[io]])
-    obs2, map2 = np.repeat(io, 2), np.repeat(im, 2)
-    end_points = observed.evaluate(obs2, u_ends.ravel())[0]
-    t_ends = closest_points_batch(mapped, map2, end_points)[0].reshape(-1, 2)
-    lo_m, hi_m = tm.lo[im][:, None], tm.hi[im][:, None]
-    at_lo, at_hi = _at_end(t_ends, lo_m, hi_m)
-    requery = at_lo | at_hi
-    if requery.any():
-        # the observed end lies beyond the map spline: the correspondence starts at the map
-        # spline's end instead, at the observed point closest to it
-        map_end = mapped.evaluate(map2[requery.ravel()], t_ends[requery])[0]
-        u_ends[requery] = closest_points_batch(observed, obs2[requery.ravel()], map_end)[0]
+    # Closest map points to both ends of each observed spline: (2P,) parameters, pair by pair.
+    t_ends = closest_points_batch(mapped, curves, end_points)[0]
+    # where that is the map spline's end, the correspondence starts there instead, at the
+    # observed point closest to it
+    map_end, requeried = kernels.map_end_queries(t_ends, pairs, curves, *maps)
+    u_requeried = closest_points_batch(observed, requeried, map_end)[0] if requeried.size else np.empty(0)
     # opposite orientation (far side of a wall) or no overlap, then the distance test
-    ordered = (t_ends[:, 1] > t_ends[:, 0]) & (u_ends[:, 1] > u_ends[:, 0])
-    gap = observed.evaluate(obs2, u_ends.ravel())[0] - mapped.evaluate(map2, t_ends.ravel())[0]
-    gap = np.hypot(gap[:, 0], gap[:, 1]).reshape(-1, 2).max(axis=1)
-    accepted = np.flatnonzero(ordered & (gap <= deltas[io, jf]))
-    for p in accepted:  # one Match per accepted pair (a handful per scan)
-        result[io[p]].append(Match(int(feature_ids[im[p]]), float(u_ends[p, 0]), float(u_ends[p, 1]),
-                                   float(t_ends[p, 0]), float(t_ends[p, 1]),
-                                   at_lo=bool(at_lo[p, 0]), at_hi=bool(at_hi[p, 1])))
-    for matches in result:
-        matches.sort(key=lambda m: m.u_ini)
+    values, labels, at_end = kernels.accepted_pairs(t_ends, u_requeried, pairs, curves,
+                                                    np.asarray(feature_ids, dtype=np.intp),
+                                                    _per_pair(match_distance_m, k, candidates.size), *obs, *maps)
+    # one Match per accepted pair (a handful per scan), already in each curve's u_ini order
+    for (i, fid), (u_ini, u_fin, t_ini, t_fin), (lo_end, hi_end) in zip(labels.tolist(), values.tolist(),
+                                                                        at_end.tolist()):
+        result[i].append(Match(fid, u_ini, u_fin, t_ini, t_fin, at_lo=lo_end, at_hi=hi_end))
     return result

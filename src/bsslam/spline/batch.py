@@ -138,9 +138,9 @@ class CurveTable:
     def bboxes(self, control_points: np.ndarray) -> np.ndarray:
         """(C, 4) ``xmin, ymin, xmax, ymax`` of each control polygon (m), from stacked
         control points (N, 2); the box contains the curve."""
-        starts = self.cp_start[:-1]
-        return np.hstack([np.minimum.reduceat(control_points, starts, axis=0),
-                          np.maximum.reduceat(control_points, starts, axis=0)])
+        # compiled (kernels.bboxes): the two reduceat and their stacking cost several
+        # times the whole loop; a min or max does not round, so the boxes are the same
+        return kernels.bboxes(np.asarray(control_points, dtype=float), self.cp_start)
 
     def extreme_control_points(self, control_points: np.ndarray, curves: np.ndarray, point: np.ndarray,
                                farthest: bool = False) -> np.ndarray:
@@ -199,14 +199,15 @@ class CurveBatch:
         """Points and derivatives 0 … nder at parameters t (m,) (clamped) on curves (m,):
         (nder+1, m, 2)."""
         if nder == 0:
+            # compiled point by point (kernels.evaluate_points): Horner as _horner_points
+            # does it, the piece found as _search finds it; a NaN parameter gives a NaN point
             table = self.table
+            t = np.ascontiguousarray(t, dtype=float)
             curve = np.asarray(curve, dtype=np.intp)
-            t = np.minimum(np.maximum(np.asarray(t, dtype=float), table.lo.take(curve)), table.hi.take(curve))
-            # no NaN guard as in locate: a NaN parameter gives a NaN point on any piece
-            piece = _search(table.piece_keys, curve, t)
-            out = np.empty((1, t.shape[0], 2))
-            _horner_points(self.coeffs_t.take(piece, axis=2), t - table.piece_lo.take(piece), out=out[0].T)
-            return out
+            if curve.shape != t.shape:      # one curve for all parameters
+                curve = np.full(t.shape, curve, dtype=np.intp)
+            return kernels.evaluate_points(self.coeffs_t, table.piece_lo, table.piece_start, table.lo, table.hi,
+                                           curve, t)[None]
         piece, u, _ = self.table.locate(curve, np.asarray(t, dtype=float))
         return horner_with_derivatives(self.coeffs.take(piece, axis=0), u, nder)
 

@@ -305,3 +305,59 @@ def sampled_minima(coeffs_t, control_points, window, piece_lo, width, piece_star
         t_start[2 * found + k] = t_grid[min(at[k] + 1, at_hi[k])]
         owner[k] = owner[found + k] = owner[2 * found + k] = at_owner[k]
     return t_start, owner
+
+
+@jit
+def point_at(coeffs_t, piece_lo, first, last, lo, hi, t):
+    """Point (x, y) at parameter t (m) of the curve of pieces first … last and domain
+    [lo, hi], t clamped into it: the operations of ``CurveBatch.evaluate`` for one
+    parameter (np.minimum/np.maximum keep a NaN, which then gives a NaN point on whichever
+    piece). The curve comes as scalars: every array argument of a call between compiled
+    functions costs a reference count up and down (tens of ns each, more than the point)."""
+    if not math.isnan(t):
+        t = min(max(t, lo), hi)
+    piece = _piece_of(piece_lo, first, last, t)
+    return _point(coeffs_t, piece, t - piece_lo[piece])
+
+
+@jit
+def evaluate_points(coeffs_t, piece_lo, piece_start, lo, hi, curve, t):
+    """(m, 2) points (m) of curves ``curve`` (m,) at parameters t (m,) (clamped)."""
+    out = np.empty((t.shape[0], 2))
+    for i in range(t.shape[0]):
+        c = curve[i]
+        out[i, 0], out[i, 1] = point_at(coeffs_t, piece_lo, piece_start[c], piece_start[c + 1] - 1, lo[c], hi[c],
+                                        t[i])
+    return out
+
+
+@jit
+def bbox(control_points, first, end):
+    """``x_min, y_min, x_max, y_max`` of control-point rows first … end − 1 (m). A NaN
+    coordinate makes its bound NaN, as np.minimum / np.maximum propagate it (exact:
+    a min or max does not round, so the order of the rows does not matter)."""
+    x0 = x1 = control_points[first, 0]
+    y0 = y1 = control_points[first, 1]
+    for r in range(first + 1, end):
+        x, y = control_points[r, 0], control_points[r, 1]
+        # a NaN bound stays (every comparison with it is False); a NaN coordinate is taken
+        if x < x0 or math.isnan(x):
+            x0 = x
+        if x > x1 or math.isnan(x):
+            x1 = x
+        if y < y0 or math.isnan(y):
+            y0 = y
+        if y > y1 or math.isnan(y):
+            y1 = y
+    return x0, y0, x1, y1
+
+
+@jit
+def bboxes(control_points, cp_start):
+    """(C, 4) ``x_min, y_min, x_max, y_max`` (m) of the control points (N, 2) of each of
+    the C curves, curve c owning rows ``cp_start[c] … cp_start[c+1] − 1``."""
+    n = cp_start.shape[0] - 1
+    out = np.empty((n, 4))
+    for c in range(n):
+        out[c, 0], out[c, 1], out[c, 2], out[c, 3] = bbox(control_points, cp_start[c], cp_start[c + 1])
+    return out

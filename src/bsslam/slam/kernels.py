@@ -1,0 +1,244 @@
+"""Compiled steps of data association (:func:`bsslam.slam.association.associate`).
+
+A scan's association is tens of (observed, map) spline pairs, each asking a few numbers
+(two boxes, a few dozen control-point distances, four curve points). Written as
+whole-array numpy, every step is one or more numpy calls of a few microseconds whatever
+the number of pairs, and the steps were about two thirds of association's time (the rest
+is the closest-point searches, already compiled: :mod:`bsslam.spline.kernels`). These
+loops take the pairs one by one and do, for each, the floating-point operations of the
+numpy form they replaced, in the same order (numba's strict IEEE arithmetic, see
+:mod:`bsslam.compiled`), so the matches and their parameters are bit-identical to it
+(checked on every association call of an intel-rawodom run and of the simulated corridor
+of ``benchmarks/bench_filter.py``).
+
+Curves are given as in :mod:`bsslam.spline.kernels`: ``coeffs_t`` (p+1, 2, S), pieces
+``piece_lo`` (S,) and ``piece_start`` (C+1,), domains ``lo``, ``hi`` (C,), stacked control
+points (N, 2) with ``cp_start`` (C+1,).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from bsslam.compiled import jit
+from bsslam.spline.kernels import bbox, point_at
+
+
+@jit
+def _smallest_gap2(cp_a, first_a, end_a, cp_b, first_b, end_b):
+    """Smallest squared distance (m²) between control-point rows first_a … end_a − 1 of
+    cp_a and first_b … end_b − 1 of cp_b: dx·dx + dy·dy as numpy's two-term
+    ``einsum("ij,ij->i")`` adds it (no fused multiply-add), NaN if any is NaN (as
+    np.minimum.reduceat)."""
+    best = np.inf
+    for i in range(first_a, end_a):
+        for j in range(first_b, end_b):
+            dx = cp_a[i, 0] - cp_b[j, 0]
+            dy = cp_a[i, 1] - cp_b[j, 1]
+            d2 = dx * dx + dy * dy
+            if d2 < best or math.isnan(d2):    # a NaN best stays: comparisons with it are False
+                best = d2
+    return best
+
+
+@jit
+def control_point_gaps(cp_a, cp_start_a, cp_b, cp_start_b, ia, ib):
+    """(k,) smallest distance (m) between a control point of curve ``ia[j]`` of a and one
+    of curve ``ib[j]`` of b, for k pairs."""
+    out = np.empty(ia.shape[0])
+    for j in range(ia.shape[0]):
+        a, b = ia[j], ib[j]
+        out[j] = math.sqrt(_smallest_gap2(cp_a, cp_start_a[a], cp_start_a[a + 1], cp_b, cp_start_b[b],
+                                          cp_start_b[b + 1]))
+    return out
+
+
+@jit
+def _point(coeffs_t, piece_lo, piece_start, lo, hi, c, t):
+    """Point (x, y) of curve c at parameter t (m), clamped into its domain."""
+    return point_at(coeffs_t, piece_lo, piece_start[c], piece_start[c + 1] - 1, lo[c], hi[c], t)
+
+
+@jit
+def gated_pairs(obs_cp, obs_cp_start, obs_coeffs_t, obs_piece_lo, obs_piece_start, obs_lo, obs_hi,
+                map_cp, map_cp_start, candidates, gates):
+    """The (observed, candidate) pairs that pass the gates, and the observed ends to query.
+
+    A pair passes when its control polygons' bounding boxes are within ``gates[i, j]`` (m)
+    of each other and so is its closest pair of control points (the boxes first: cheap,
+    and what they reject the control points would too).
+
+    Args:
+        obs_*: the k observed curves (control points, their rows, coefficients, pieces,
+            domains).
+        map_cp, map_cp_start: the map's control points (N, 2) (m) and their rows (C+1,).
+        candidates: (F,) map curves to try.
+        gates: (k, F) gate of each pair (m).
+
+    Returns:
+        ``pairs`` (2, P): observed curve and candidate position of each passing pair,
+        observed-major (``np.nonzero``'s order); ``ends`` (2P, 2) the observed curve's
+        points at its domain's lower and upper end, pair by pair (m); ``curves`` (2P,) the
+        map curve of each end (the closest-point queries). Few arrays: each returned one
+        costs about a microsecond.
+    """
+    k, f = obs_cp_start.shape[0] - 1, candidates.shape[0]
+    ob = np.empty((k, 4))
+    for i in range(k):
+        ob[i, 0], ob[i, 1], ob[i, 2], ob[i, 3] = bbox(obs_cp, obs_cp_start[i], obs_cp_start[i + 1])
+    mb = np.empty((f, 4))
+    for j in range(f):
+        c = candidates[j]
+        mb[j, 0], mb[j, 1], mb[j, 2], mb[j, 3] = bbox(map_cp, map_cp_start[c], map_cp_start[c + 1])
+    pairs = np.empty((2, k * f), dtype=np.intp)
+    n = 0
+    for i in range(k):
+        for j in range(f):
+            g = gates[i, j]
+            if (mb[j, 0] - ob[i, 2] > g or ob[i, 0] - mb[j, 2] > g
+                    or mb[j, 1] - ob[i, 3] > g or ob[i, 1] - mb[j, 3] > g):
+                continue
+            c = candidates[j]
+            gap = math.sqrt(_smallest_gap2(obs_cp, obs_cp_start[i], obs_cp_start[i + 1], map_cp, map_cp_start[c],
+                                           map_cp_start[c + 1]))
+            if not gap <= g:
+                continue
+            pairs[0, n] = i
+            pairs[1, n] = j
+            n += 1
+    ends = np.empty((2 * n, 2))
+    curves = np.empty(2 * n, dtype=np.intp)
+    for p in range(n):
+        i = pairs[0, p]
+        for e in range(2):
+            t = obs_lo[i] if e == 0 else obs_hi[i]
+            ends[2 * p + e, 0], ends[2 * p + e, 1] = _point(obs_coeffs_t, obs_piece_lo, obs_piece_start, obs_lo,
+                                                            obs_hi, i, t)
+            curves[2 * p + e] = candidates[pairs[1, p]]
+    return pairs[:, :n].copy(), ends, curves
+
+
+@jit
+def _at_ends(t, lo, hi):
+    """Whether parameter t (m) is at the lower / upper end of the domain [lo, hi]: within
+    10⁻⁶ of its length (at least 1 m)."""
+    width = hi - lo
+    if not (width >= 1.0 or math.isnan(width)):   # np.maximum(1.0, width), NaN kept
+        width = 1.0
+    tol = 1e-6 * width
+    return t <= lo + tol, t >= hi - tol
+
+
+@jit
+def map_end_queries(t_ends, pairs, curves, map_coeffs_t, map_piece_lo, map_piece_start, map_lo, map_hi):
+    """Where the closest map point to an observed end is its map spline's end: the map
+    point there, to look up the observed point closest to it instead.
+
+    Args:
+        t_ends: (2P,) map parameter closest to each observed end (m), pair by pair.
+        pairs: (2, P) observed curve (and candidate) of each pair; curves: (2P,) map curve
+            of each end.
+        map_*: the map curves' coefficients, pieces and domains.
+
+    Returns:
+        ``points`` (R, 2) the map end points (m) and ``observed`` (R,) their observed
+        curves, for the R ends at either end of their map spline, in order of the ends.
+    """
+    m = t_ends.shape[0]
+    at = np.empty(m, dtype=np.intp)
+    r = 0
+    for e in range(m):
+        c = curves[e]
+        low, high = _at_ends(t_ends[e], map_lo[c], map_hi[c])
+        if low or high:
+            at[r] = e
+            r += 1
+    points = np.empty((r, 2))
+    observed = np.empty(r, dtype=np.intp)
+    for j in range(r):
+        e = at[j]
+        points[j, 0], points[j, 1] = _point(map_coeffs_t, map_piece_lo, map_piece_start, map_lo, map_hi, curves[e],
+                                            t_ends[e])
+        observed[j] = pairs[0, e // 2]
+    return points, observed
+
+
+@jit
+def accepted_pairs(t_ends, u_requeried, pairs, curves, feature_ids, deltas, obs_coeffs_t, obs_piece_lo,
+                   obs_piece_start, obs_lo, obs_hi, map_coeffs_t, map_piece_lo, map_piece_start, map_lo, map_hi):
+    """The pairs that match, with their parameters.
+
+    Each pair's observed interval runs between its observed spline's ends, except where an
+    end's closest map point is a map spline end: there it is the observed parameter closest
+    to that map end (``u_requeried``, (R,), in the order of :func:`map_end_queries`). A
+    pair matches when it is ordered alike (``t`` and ``u`` both increase from the first end
+    to the second: not the far side of a wall, and some overlap) and both ends' observed
+    and map points are within ``deltas[i, j]`` (m).
+
+    Args:
+        t_ends: (2P,) map parameters of each pair's two ends (m).
+        pairs: (2, P) observed curve i and candidate position j of each pair; curves: (2P,)
+            map curve of each end; feature_ids: (C,) id of each map curve.
+        deltas: (k, F) match distance of each pair (m).
+
+    Returns:
+        The A accepted pairs, by observed curve then by u of their first end (stably: ties
+        keep the pairs' order, as sorting each curve's matches did): ``values`` (A, 4)
+        ``u_ini, u_fin, t_ini, t_fin`` (m); ``labels`` (A, 2) observed curve and feature
+        id; ``at_end`` (A, 2) whether the first end is the map spline's lower end and the
+        second its upper end.
+    """
+    n = pairs.shape[1]
+    u_ends = np.empty(2 * n)
+    at_end = np.empty((n, 2), dtype=np.bool_)
+    r = 0
+    for e in range(2 * n):
+        i, c = pairs[0, e // 2], curves[e]
+        low, high = _at_ends(t_ends[e], map_lo[c], map_hi[c])
+        if e % 2 == 0:
+            at_end[e // 2, 0] = low
+        else:
+            at_end[e // 2, 1] = high
+        if low or high:
+            u_ends[e] = u_requeried[r]
+            r += 1
+        else:
+            u_ends[e] = obs_lo[i] if e % 2 == 0 else obs_hi[i]
+    order = np.empty(n, dtype=np.intp)
+    a = 0
+    for p in range(n):
+        i = pairs[0, p]
+        u0, u1, t0, t1 = u_ends[2 * p], u_ends[2 * p + 1], t_ends[2 * p], t_ends[2 * p + 1]
+        if not (t1 > t0 and u1 > u0):
+            continue
+        delta = deltas[i, pairs[1, p]]
+        ok = True
+        for e in range(2):
+            ox, oy = _point(obs_coeffs_t, obs_piece_lo, obs_piece_start, obs_lo, obs_hi, i, u_ends[2 * p + e])
+            mx, my = _point(map_coeffs_t, map_piece_lo, map_piece_start, map_lo, map_hi, curves[2 * p + e],
+                            t_ends[2 * p + e])
+            # both within δ is max(…) ≤ δ, NaN failing either way
+            if not math.hypot(ox - mx, oy - my) <= delta:
+                ok = False
+        if not ok:
+            continue
+        # insertion into the observed curve's run, after any equal u (stable); pairs
+        # come observed-major, so the run is the tail of ``order``
+        j = a
+        while j > 0 and pairs[0, order[j - 1]] == i and u_ends[2 * order[j - 1]] > u0:
+            order[j] = order[j - 1]
+            j -= 1
+        order[j] = p
+        a += 1
+    values = np.empty((a, 4))
+    labels = np.empty((a, 2), dtype=np.intp)
+    flags = np.empty((a, 2), dtype=np.bool_)
+    for q in range(a):
+        p = order[q]
+        values[q, 0], values[q, 1] = u_ends[2 * p], u_ends[2 * p + 1]
+        values[q, 2], values[q, 3] = t_ends[2 * p], t_ends[2 * p + 1]
+        labels[q, 0], labels[q, 1] = pairs[0, p], feature_ids[curves[2 * p]]
+        flags[q, 0], flags[q, 1] = at_end[p, 0], at_end[p, 1]
+    return values, labels, flags
