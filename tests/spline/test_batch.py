@@ -33,7 +33,8 @@ def test_evaluate_and_basis_match_each_curve(cs, seed):
     got = batch.evaluate(which, t, 2)
     table = batch.table
     piece, u, t_clamped = table.locate(which, t)
-    beta = table.basis_values(piece, u)
+    piece_at, beta = table.basis_at(which, t)
+    np.testing.assert_array_equal(piece_at, piece)
     for c, curve in enumerate(cs):
         sel = which == c
         if not sel.any():

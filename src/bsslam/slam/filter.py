@@ -20,6 +20,7 @@ from bsslam.slam.association import Match, associate, relative_sigma
 from bsslam.slam.ekf import PriorCovariance, StackedGain, gate_threshold, innovation_variances
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
 from bsslam.slam.features import MapSpline, SplineFeature
+from bsslam.slam.kernels import stack_jacobian
 from bsslam.slam.map_curves import MapCurves
 from bsslam.slam.motion import motion_noise, predict
 from bsslam.slam.observation import laser_pose, predict_beams_batch
@@ -361,18 +362,10 @@ class SplineSLAM:
         rows = np.flatnonzero(ok)
         if rows.size == 0:
             return None
-        # state columns of each row's control points (x then y); −1 where there is none
-        # (padding of a lower-degree spline, or a fixed spline in localisation mode)
-        state = mc.state_rows[pred.window[rows]]                          # (m, p+1, 2)
-        real = pred.real[rows]
-        cp_cols = np.where(real[:, :, None], state, -1).transpose(0, 2, 1).reshape(rows.size, -1)
-        cp_vals = np.hstack([pred.H_cp_x[rows], pred.H_cp_y[rows]])
-        used = cp_cols >= 0
-        cols = np.concatenate([np.arange(3), np.unique(cp_cols[used])])
-        H_c = np.zeros((rows.size, cols.shape[0]))
-        H_c[:, :3] = pred.H_pose[rows]
-        r_idx, _ = np.nonzero(used)
-        H_c[r_idx, np.searchsorted(cols[3:], cp_cols[used]) + 3] = cp_vals[used]
+        # the pose and the state columns of the rows' control points; padding of a
+        # lower-degree spline and fixed splines (localisation mode) have none
+        cols, H_c = stack_jacobian(rows, pred.window, pred.real, mc.state_rows, pred.H_cp_x, pred.H_cp_y,
+                                   pred.H_pose, self.state.size)
         return _Linearization(cols, H_c, beams.ranges[rows] - pred.z[rows], rows, pred.t[rows])
 
     @staticmethod

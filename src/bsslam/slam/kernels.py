@@ -1,4 +1,5 @@
-"""Compiled steps of data association (:func:`bsslam.slam.association.associate`).
+"""Compiled steps of the filter: data association (:func:`bsslam.slam.association.associate`)
+and the stacked Jacobian of a scan's beams (:func:`stack_jacobian`).
 
 A scan's association is tens of (observed, map) spline pairs, each asking a few numbers
 (two boxes, a few dozen control-point distances, four curve points). Written as
@@ -242,3 +243,57 @@ def accepted_pairs(t_ends, u_requeried, pairs, curves, feature_ids, deltas, obs_
         labels[q, 0], labels[q, 1] = pairs[0, p], feature_ids[curves[2 * p]]
         flags[q, 0], flags[q, 1] = at_end[p, 0], at_end[p, 1]
     return values, labels, flags
+
+
+# -- the stacked Jacobian ---------------------------------------------------------------------
+
+@jit
+def stack_jacobian(rows, window, real, state_rows, H_cp_x, H_cp_y, H_pose, n_state):
+    """The columns and rows of the stacked range Jacobian of the beams ``rows``.
+
+    Args:
+        rows: (m,) the beams kept, indices into the per-beam arrays below.
+        window: (k, p+1) control-point rows (in the map table) of each beam's hit piece;
+            real: (k, p+1) False on padding entries.
+        state_rows: (N, 2) state index of each control point's x and y (−1: not in the
+            state, e.g. a fixed spline).
+        H_cp_x, H_cp_y: (k, p+1) ∂z/∂x and ∂z/∂y of those control points; H_pose: (k, 3).
+        n_state: the state size n.
+
+    Returns:
+        cols: (c,) the pose indices 0, 1, 2 then every state index the beams touch, in
+        increasing order; H_c: (m, c) the Jacobian restricted to them (zeros elsewhere).
+    """
+    n_coef = window.shape[1]
+    mark = np.zeros(n_state, dtype=np.bool_)
+    for j in rows:
+        for r in range(n_coef):
+            if real[j, r]:
+                for d in range(2):
+                    idx = state_rows[window[j, r], d]
+                    if idx >= 0:
+                        mark[idx] = True
+    pos = np.full(n_state, -1, dtype=np.intp)
+    count = 3
+    for i in range(3, n_state):          # control points are never the pose
+        if mark[i]:
+            pos[i] = count
+            count += 1
+    cols = np.empty(count, dtype=np.intp)
+    cols[0], cols[1], cols[2] = 0, 1, 2
+    for i in range(3, n_state):
+        if pos[i] >= 0:
+            cols[pos[i]] = i
+    H_c = np.zeros((rows.shape[0], count))
+    for a in range(rows.shape[0]):
+        j = rows[a]
+        H_c[a, 0], H_c[a, 1], H_c[a, 2] = H_pose[j, 0], H_pose[j, 1], H_pose[j, 2]
+        for r in range(n_coef):
+            if real[j, r]:
+                idx = state_rows[window[j, r], 0]
+                if idx >= 0:
+                    H_c[a, pos[idx]] = H_cp_x[j, r]
+                idx = state_rows[window[j, r], 1]
+                if idx >= 0:
+                    H_c[a, pos[idx]] = H_cp_y[j, r]
+    return cols, H_c

@@ -123,8 +123,7 @@ def predict_beams_batch(batch: CurveBatch, curve: np.ndarray, robot_pose: np.nda
     z, r, t = hits.range, hits.r, hits.t
     gx, gy, H_pose = _range_jacobians(z, r, mu, robot_pose, laser_offset)
     table = batch.table
-    piece, u, _ = table.locate(curve, np.where(hits.hit, t, table.lo[curve]))
-    beta = table.basis_values(piece, u)
+    piece, beta = table.basis_at(curve, np.where(hits.hit, t, table.lo[curve]))
     return BatchBeamPrediction(
         z=z, t=t, r=r, hit=hits.hit, H_pose=H_pose, window=table.window[piece], real=table.real[piece],
         H_cp_x=-beta * gx[:, None], H_cp_y=-beta * gy[:, None],

@@ -106,17 +106,12 @@ class CurveTable:
         """(C,) global index of each curve's last piece."""
         return self.piece_start[1:] - 1
 
-    def pieces_of(self, curves: np.ndarray) -> np.ndarray:
-        """Increasing global indices of the pieces of ``curves`` (any order, repeats allowed)."""
-        mark = np.zeros(self.lo.shape[0], dtype=bool)
-        mark[curves] = True
-        return mark[self.piece_curve].nonzero()[0]
-
     def with_control_points(self, control_points: np.ndarray, curves: np.ndarray | None = None) -> CurveBatch:
         """The curves with stacked control points (N, 2) (m), rows ordered as ``cp_start``.
 
         With ``curves`` (indices), only those curves get polynomial coefficients (the
-        others' stay NaN and must not be queried): the filter queries the few splines near
+        others' stay NaN and must not be queried; compiled:
+        :func:`bsslam.spline.kernels.piece_coefficients`): the filter queries the few splines near
         the robot of a map of hundreds, and the coefficients are recomputed whenever the
         state moves.
         """
@@ -129,10 +124,8 @@ class CurveTable:
             coeffs = _piece_coeffs(self.power_basis, cp.take(self.window, axis=0))
             coeffs_t = np.ascontiguousarray(coeffs.transpose(1, 2, 0))
         else:
-            piece = self.pieces_of(np.asarray(curves, dtype=np.intp))
-            coeffs_t = np.full((self.p + 1, 2, self.piece_lo.shape[0]), np.nan)
-            coeffs_t[:, :, piece] = _piece_coeffs(self.power_basis.take(piece, axis=0),
-                                                  cp.take(self.window.take(piece, axis=0), axis=0)).transpose(1, 2, 0)
+            coeffs_t = kernels.piece_coefficients(self.power_basis, self.window, cp,
+                                                  np.asarray(curves, dtype=np.intp), self.piece_start)
         return CurveBatch(self, cp, coeffs_t.transpose(2, 0, 1))
 
     def bboxes(self, control_points: np.ndarray) -> np.ndarray:
@@ -166,9 +159,12 @@ class CurveTable:
         np.minimum(piece, self.last_piece.take(curve), out=piece)
         return piece, t - self.piece_lo.take(piece), t
 
-    def basis_values(self, piece: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """(m, p+1) values of the basis functions of ``window[piece]`` at local ``u`` (m,)."""
-        return horner_with_derivatives(self.power_basis.take(piece, axis=0), u, 0)[0]
+    def basis_at(self, curve: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Piece (m,) and values (m, p+1) of the basis functions of its control-point window
+        ``window[piece]`` at finite parameters ``t`` (m,) of curves ``curve`` (m,), clamped
+        as :meth:`locate` clamps them (compiled: :func:`bsslam.spline.kernels.hit_basis`)."""
+        return kernels.hit_basis(self.power_basis, self.piece_lo, self.piece_start, self.lo, self.hi,
+                                 np.asarray(curve, dtype=np.intp), np.asarray(t, dtype=float))
 
 
 @dataclass(frozen=True, eq=False)

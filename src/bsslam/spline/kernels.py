@@ -361,3 +361,50 @@ def bboxes(control_points, cp_start):
     for c in range(n):
         out[c, 0], out[c, 1], out[c, 2], out[c, 3] = bbox(control_points, cp_start[c], cp_start[c + 1])
     return out
+
+
+@jit
+def piece_coefficients(power_basis, window, control_points, curves, piece_start):
+    """(p+1, 2, S) Taylor coefficients of the pieces of ``curves`` (NaN for every other
+    piece): Σ_r power_basis[s, k, r] · control_points[window[s, r]], summed in order
+    r = 0, 1, … as ``batch._piece_coeffs``' numpy sum adds them.
+
+    Args:
+        power_basis: (S, p+1, p+1); window: (S, p+1) control-point rows of each piece;
+        control_points: (N, 2) (m); curves: (u,) curve indices; piece_start: (C+1,).
+    """
+    n_coef = power_basis.shape[1]
+    out = np.full((n_coef, 2, power_basis.shape[0]), np.nan)
+    for c in curves:
+        for s in range(piece_start[c], piece_start[c + 1]):
+            for k in range(n_coef):
+                for d in range(2):
+                    acc = power_basis[s, k, 0] * control_points[window[s, 0], d]
+                    for r in range(1, n_coef):
+                        acc += power_basis[s, k, r] * control_points[window[s, r], d]
+                    out[k, d, s] = acc
+    return out
+
+
+@jit
+def hit_basis(power_basis, piece_lo, piece_start, lo, hi, curve, t):
+    """The piece (m,) holding each finite parameter ``t`` (m,) of curve ``curve`` (m,)
+    (clamped into the curve's domain) and the values (m, p+1) of the basis functions of
+    that piece's control-point window there: ``CurveTable.locate`` then
+    ``basis_values``, the same Horner operations in the same order."""
+    m = t.shape[0]
+    n_coef = power_basis.shape[1]
+    piece = np.empty(m, dtype=np.intp)
+    beta = np.empty((m, n_coef))
+    for j in range(m):
+        c = curve[j]
+        tc = min(max(t[j], lo[c]), hi[c])
+        s = _piece_of(piece_lo, piece_start[c], piece_start[c + 1] - 1, tc)
+        piece[j] = s
+        u = tc - piece_lo[s]
+        for r in range(n_coef):
+            v = power_basis[s, n_coef - 1, r]
+            for i in range(n_coef - 2, -1, -1):
+                v = v * u + power_basis[s, i, r]
+            beta[j, r] = v
+    return piece, beta
