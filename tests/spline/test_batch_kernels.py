@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 from spline_cases import batch_of, curves, params_in, wall_curves
 
 from bsslam.spline import intersect as one_curve
+from bsslam.spline import kernels
 from bsslam.spline.batch import closest_points_batch, intersect_rays_batch
 from bsslam.spline.pieces import horner_rows
 
@@ -146,3 +147,15 @@ def test_bboxes_against_reduceat(cs, seed):
         starts = batch.table.cp_start[:-1]
         expected = np.hstack([np.minimum.reduceat(points, starts, axis=0), np.maximum.reduceat(points, starts, axis=0)])
         _assert_same(batch.table.bboxes(points), expected)
+
+
+def test_first_per_group_is_the_stable_lexsort_pick():
+    """The compiled pick of each group's smallest key equals the lexsort one, with ties,
+    NaN keys and an absent group."""
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        k = int(rng.integers(1, 40))
+        key = rng.integers(0, 4, k).astype(float)          # many ties
+        key[rng.random(k) < 0.2] = np.nan
+        group = rng.integers(0, 6, k)
+        np.testing.assert_array_equal(kernels.first_per_group(key, group, 7), one_curve.first_per_group(key, group))

@@ -47,7 +47,7 @@ from bsslam.spline.closest import _MAX_NEWTON as _CLOSEST_MAX_NEWTON
 from bsslam.spline.closest import _STEP_TOLERANCE as _CLOSEST_STEP_TOLERANCE
 from bsslam.spline.intersect import _MAX_NEWTON as _RAY_MAX_NEWTON
 from bsslam.spline.intersect import _ROOT_TOLERANCE_M, _STEP_TOLERANCE, RayHits
-from bsslam.spline.intersect import beam_frame_polynomials, first_per_group, nearest_crossings
+from bsslam.spline.intersect import beam_frame_polynomials, nearest_crossings
 from bsslam.spline.pieces import horner_with_derivatives
 
 
@@ -522,19 +522,11 @@ def closest_points_batch(batch: CurveBatch, curve: np.ndarray, queries: np.ndarr
             t_start = np.concatenate([t_start, t_s])
             owner = np.concatenate([owner, unguessed[owner_s]])
     t, d2 = _closest_newton(batch, curve.take(owner), q.take(owner, axis=0), t_start)
-    best = first_per_group(d2, owner)    # each query's best start
+    best = kernels.first_per_group(d2, owner, q.shape[0])    # each query's best start
     t_best = t.take(best)
-    points = np.ascontiguousarray(_evaluate_points(batch, curve, t_best).T)
+    points = kernels.evaluate_points(batch.coeffs_t, table.piece_lo, table.piece_start, table.lo, table.hi,
+                                     curve, t_best)
     return t_best, points, np.sqrt(d2.take(best))
-
-
-def _evaluate_points(batch: CurveBatch, curve: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(2, m) points at finite parameters t (m,) on curves (m,) (clamped): the transpose
-    of ``batch.evaluate(curve, t)[0]``, with fewer numpy calls."""
-    table = batch.table
-    t = np.minimum(np.maximum(t, table.lo.take(curve)), table.hi.take(curve))
-    piece = _search(table.piece_keys, curve, t)
-    return _horner_points(batch.coeffs_t.take(piece, axis=2), t - table.piece_lo.take(piece))
 
 
 def _sampled_minima(batch: CurveBatch, curve: np.ndarray, q: np.ndarray, sample_step_m: float,

@@ -408,3 +408,23 @@ def hit_basis(power_basis, piece_lo, piece_start, lo, hi, curve, t):
                 v = v * u + power_basis[s, i, r]
             beta[j, r] = v
     return piece, beta
+
+
+@jit
+def first_per_group(key, group, n_groups):
+    """Index of each group's smallest ``key`` among (k,) keys in groups ``group`` (k,)
+    (values 0 … n_groups − 1), ties to the earlier entry and NaN keys last, as
+    :func:`bsslam.spline.intersect.first_per_group`'s stable lexsort picks it; groups with
+    no entry are left out (the result lists the others in increasing order)."""
+    best = np.full(n_groups, -1, dtype=np.intp)
+    for i in range(key.shape[0]):
+        g = group[i]
+        b = best[g]
+        if b < 0 or key[i] < key[b] or (math.isnan(key[b]) and not math.isnan(key[i])):
+            best[g] = i
+    count = 0
+    for g in range(n_groups):
+        if best[g] >= 0:
+            best[count] = best[g]
+            count += 1
+    return best[:count]
