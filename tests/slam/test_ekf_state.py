@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from bsslam.slam.ekf import PriorCovariance, StackedGain, innovation_variances
+from bsslam.slam.ekf import StackedGain, innovation_variances
 from bsslam.se2 import compose_jacobians
 from bsslam.slam.motion import predict
 from bsslam.slam.state import JointState
@@ -51,40 +51,6 @@ def test_stacked_gain_equals_dense_ekf(m):
     assert np.all(np.linalg.eigvalsh(state.P) > 0)
     np.testing.assert_allclose(nis, nu @ np.linalg.solve(S, nu), rtol=1e-9)
     np.testing.assert_allclose(gain.S_diag, np.diag(S), rtol=1e-12)
-
-
-def test_gain_reads_a_pending_covariance_like_the_dense_one():
-    """The filter hands the gain its state's prior (P = base − B G Bᵀ, not folded): the
-    correction, NIS, gate variances and update equal the dense EKF's."""
-    rng = np.random.default_rng(4)
-    n, m, R = 40, 25, 1e-4
-    state, P0 = make_state(rng, n)
-    earlier, W = np.array([0, 1, 2, 9, 10, 30]), rng.normal(size=(6, 4)) * 0.1
-    state.subtract_column_update(earlier, W)
-    Z = P0[:, earlier] @ W
-    dense = P0 - Z @ Z.T
-    H_c = rng.normal(size=(m, COLS.size))
-    H = np.zeros((m, n))
-    H[:, COLS] = H_c
-    nu = rng.normal(size=m) * 0.01
-    prior = PriorCovariance(state)
-    gain = StackedGain(prior, COLS, H_c, R)
-    assert state.pending_rank > 0      # read without folding
-    dx, nis = gain.correction(nu)
-    S = H @ dense @ H.T + R * np.eye(m)
-    K = dense @ H.T @ np.linalg.inv(S)
-    np.testing.assert_allclose(dx, K @ nu, atol=1e-10)
-    np.testing.assert_allclose(nis, nu @ np.linalg.solve(S, nu), rtol=1e-9)
-    np.testing.assert_allclose(innovation_variances(prior, COLS, H_c, R), np.diag(S), rtol=1e-12)
-    P_post = (np.eye(n) - K @ H) @ dense
-    cols2 = np.array([0, 1, 2, 6, 9, 31])       # a relinearised H' on other columns
-    H2_c = rng.normal(size=(7, cols2.size))
-    H2 = np.zeros((7, n))
-    H2[:, cols2] = H2_c
-    np.testing.assert_allclose(gain.posterior_variances(prior, cols2, H2_c, R), np.diag(H2 @ P_post @ H2.T) + R,
-                               rtol=1e-9)
-    gain.update_covariance(state)
-    np.testing.assert_allclose(state.P, P_post, atol=1e-10)
 
 
 def test_gate_variances_prior_and_posterior_equal_dense_formulas():

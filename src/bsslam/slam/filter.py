@@ -17,7 +17,7 @@ from bsslam.errors import FilterError, FitError, InputError
 from bsslam.scan import LaserScan, ObservedSpline, ScanFeatures, extract_splines
 from bsslam.scan.refine import refine_for_map
 from bsslam.slam.association import Match, associate, relative_sigma
-from bsslam.slam.ekf import PriorCovariance, StackedGain, gate_threshold, innovation_variances
+from bsslam.slam.ekf import CovarianceColumns, StackedGain, gate_threshold, innovation_variances
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
 from bsslam.slam.features import MapSpline, SplineFeature
 from bsslam.slam.kernels import stack_jacobian
@@ -399,19 +399,19 @@ class SplineSLAM:
         # so after a poorly predicted step a tight gate drops exactly the beams that disagree
         # with the prior. Gross outliers go first (loose gate at the prior); the real gate is
         # applied at the first corrected estimate with posterior variances.
-        prior = PriorCovariance(self.state)   # blocks and products of P, without folding its pending update
-        s_diag = innovation_variances(prior, lin.cols, lin.H_c, R)
+        columns = CovarianceColumns(self.state)   # P's columns, without folding its pending update
+        s_diag = innovation_variances(columns, lin.cols, lin.H_c, R)
         coarse = lin.residual ** 2 <= self._loose_gate * s_diag
         report.drop("gate", int((~coarse).sum()))
         if not coarse.any():
             return
         beams, lin = self._select(beams, lin, coarse)
-        gain = StackedGain(prior, lin.cols, lin.H_c, R)
+        gain = StackedGain(columns, lin.cols, lin.H_c, R)
         x_i = x0 + gain.correction(lin.residual)[0]
         lin = self._linearize(beams, x_i, offset, None)
         if lin is None:
             return
-        fine = lin.residual ** 2 <= self._gate * gain.posterior_variances(prior, lin.cols, lin.H_c, R)
+        fine = lin.residual ** 2 <= self._gate * gain.posterior_variances(columns, lin.cols, lin.H_c, R)
         report.drop("gate", int((~fine).sum()))
         if not fine.any():
             return
@@ -422,7 +422,7 @@ class SplineSLAM:
                 if lin is None:
                     return
                 beams, lin = self._select(beams, lin, np.ones(lin.residual.shape[0], dtype=bool))
-            gain = StackedGain(prior, lin.cols, lin.H_c, R)
+            gain = StackedGain(columns, lin.cols, lin.H_c, R)
             # IEKF: ν_i = z − h(x_i) − H_i (x₀ − x_i)
             nu = lin.residual - lin.H_c @ (x0[lin.cols] - x_i[lin.cols])
             dx, nis = gain.correction(nu)

@@ -74,10 +74,7 @@ class JointState:
         self._G = np.zeros((max_pending, max_pending))
         self._a = 0
         self._reg = np.full(capacity, -1, dtype=np.intp)   # basis column equal to base[:, j], or −1
-        # B[j] G of the indices read since B or G last changed: every read of P needs these
-        # (a², not a·n, each), and one update reads the same few indices many times
-        self._BG = np.zeros((capacity, max_pending))
-        self._bg_ok = np.zeros(capacity, dtype=bool)
+        self._pose_pending: np.ndarray | None = None       # B[POSE] G, read several times a scan
         self.size = 3
         self._x[:3] = np.asarray(pose, dtype=float)
         C = np.asarray(pose_covariance, dtype=float)
@@ -120,22 +117,13 @@ class JointState:
         return self.block(POSE, POSE)
 
     def _pending_rows(self, rows: np.ndarray) -> np.ndarray:
-        """(r, a) B[rows] G: the pending term's rows are this times Bᵀ. Each index's row is
-        computed once until B or G changes (:meth:`_pending_changed`)."""
+        """(r, a) B[rows] G: the pending term's rows are this times Bᵀ."""
         a = self._a
-        ok = self._bg_ok[rows]
-        if not ok.all():
-            miss = rows[~ok]
-            self._BG[miss, :a] = self._B[miss, :a] @ self._G[:a, :a]
-            self._bg_ok[miss] = True
-        return self._BG[rows, :a]
-
-    def _pending_changed(self, rows: np.ndarray | None = None) -> None:
-        """Forget the cached B[j] G of ``rows`` (all when None): B's rows or G changed."""
-        if rows is None:
-            self._bg_ok[:] = False
-        else:
-            self._bg_ok[rows] = False
+        if rows is POSE:
+            if self._pose_pending is None:
+                self._pose_pending = self._B[POSE, :a] @ self._G[:a, :a]
+            return self._pose_pending
+        return self._B[rows, :a] @ self._G[:a, :a]
 
     def rows(self, rows: np.ndarray) -> np.ndarray:
         """(r, n) ``P[rows, :]`` (a new, C-ordered array)."""
@@ -149,26 +137,6 @@ class JointState:
         so its columns are gathered as rows: c contiguous runs of memory instead of n·c
         scattered entries (5–8× faster at n = 2000)."""
         return self.rows(cols).T
-
-    def columns_times(self, cols: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """(n,) ``P[:, cols] @ v`` for (c,) ``v``: base[:, cols] v − B (G (B[cols]ᵀ v)), so
-        the pending term costs n·a, not the n·c·a of gathering the columns first."""
-        out = v @ self.base[cols]          # base is symmetric: its rows are its columns
-        out -= self.pending_columns_times(cols, v)
-        return out
-
-    def base_rows(self, rows: np.ndarray) -> np.ndarray:
-        """(r, n) ``base[rows]`` (a new array): P's rows less the pending term, which
-        :meth:`pending_columns_times` supplies."""
-        return self.base[rows]
-
-    def pending_columns_times(self, cols: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """(n,) the pending term's part of ``P[:, cols] @ v``, B (G (B[cols]ᵀ v)) (zeros when
-        nothing is pending)."""
-        a = self._a
-        if not a:
-            return np.zeros(self.size)
-        return self._B[: self.size, :a] @ (self._G[:a, :a] @ (self._B[cols, :a].T @ v))
 
     def block(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """(r, c) ``P[np.ix_(rows, cols)]`` (a new array)."""
@@ -213,7 +181,7 @@ class JointState:
         C[self._reg[cols], np.arange(cols.shape[0])] += 1.0
         E = C @ W
         self._G[:a, :a] += E @ E.T
-        self._pending_changed()
+        self._pose_pending = None
 
     def fold(self) -> None:
         """Fold the pending update into the base: base ← base − B G Bᵀ, basis emptied."""
@@ -224,7 +192,7 @@ class JointState:
             self._G[:a, :a] = 0.0
             self._reg[:n] = -1
             self._a = 0
-            self._pending_changed()
+            self._pose_pending = None
 
     def transform(self, idx: np.ndarray, T: np.ndarray) -> None:
         """x[idx] ← T x[idx] and P ← A P Aᵀ, A the identity with T on the block ``idx``.
@@ -249,8 +217,8 @@ class JointState:
         if self._a:
             B = self._B[:, : self._a]
             B[idx] = T @ B[idx]
-            self._pending_changed(idx)
         self._reg[idx] = -1
+        self._pose_pending = None
 
     # -- growth --------------------------------------------------------------------------
     def _reserve(self, new_size: int) -> None:
@@ -264,8 +232,6 @@ class JointState:
         P = np.zeros((capacity, capacity + ROW_PAD))
         B = np.zeros((capacity, self._B.shape[1]))
         reg = np.full(capacity, -1, dtype=np.intp)
-        self._BG = np.zeros((capacity, self._B.shape[1]))
-        self._bg_ok = np.zeros(capacity, dtype=bool)
         x[:n] = self.x
         P[:n, :n] = self.base
         B[:n, : self._a] = self._B[:n, : self._a]
@@ -294,7 +260,6 @@ class JointState:
         self._P[:n, n : n + k] = cross.T
         self._P[n : n + k, n : n + k] = 0.5 * (block + block.T)
         self._B[n : n + k, : self._a] = 0.0
-        self._pending_changed(np.arange(n, n + k))
         self._reg[: n + k] = -1
         self.size = n + k
         return np.arange(n, n + k)
@@ -326,7 +291,6 @@ class JointState:
         self._P[n : n + k, n : n + k] = 0.5 * (block + block.T)
         if self._a:
             self._B[n : n + k, : self._a] = J @ self._B[cols, : self._a]
-        self._pending_changed(np.arange(n, n + k))
         self._reg[n : n + k] = -1
         self.size = n + k
         return np.arange(n, n + k)
@@ -359,7 +323,6 @@ class JointState:
             self._B[first:m, : self._a] = self._B[tail, : self._a]
             self._reg[first:m] = self._reg[tail]
         self._reg[m:n] = -1
-        self._pending_changed()
         self.size = m
         mapping = np.full(n, -1)
         mapping[kept] = np.arange(m)
