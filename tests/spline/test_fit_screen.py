@@ -67,14 +67,9 @@ def test_search_keeps_every_count_the_exact_test_accepts(degree, m, spacing, gai
         assert least_squares_operator(collocation_matrix(knots, degree, t), gain) is None
 
 
-@SETTINGS
-@given(degree=st.integers(1, 4), sizes=st.lists(st.integers(6, 60), min_size=1, max_size=5),
-       spacing=st.floats(0.01, 0.5), gain=st.sampled_from([None, 1.5, 3.0, 10.0]),
-       tiny=st.booleans(), seed=st.integers(0, 2**32 - 1))
-def test_several_runs_at_once_give_each_runs_counts(degree, sizes, spacing, gain, tiny, seed):
-    """The search over several runs in one pass keeps, for each run, exactly the counts
-    its own search keeps (also when a run's knot vectors have empty spans)."""
-    rng = np.random.default_rng(seed)
+def _runs(rng, sizes, spacing, degree, tiny):
+    """Runs of clustered parameters (the first a few ulps apart when ``tiny``: empty spans),
+    each with its distinct values, multiplicities and largest span count."""
     runs = []
     for r, m in enumerate(sizes):
         if tiny and r == 0:   # parameters a few ulps apart, far from 0: empty spans
@@ -88,6 +83,17 @@ def test_several_runs_at_once_give_each_runs_counts(degree, sizes, spacing, gain
         most = min(span_count(length, spacing if not (tiny and r == 0) else length / 50), distinct.shape[0] - degree)
         if most >= 1:
             runs.append((t, distinct, mult, most))
+    return runs
+
+
+@SETTINGS
+@given(degree=st.integers(1, 4), sizes=st.lists(st.integers(6, 60), min_size=1, max_size=5),
+       spacing=st.floats(0.01, 0.5), gain=st.sampled_from([None, 1.5, 3.0, 10.0]),
+       tiny=st.booleans(), seed=st.integers(0, 2**32 - 1))
+def test_several_runs_at_once_give_each_runs_counts(degree, sizes, spacing, gain, tiny, seed):
+    """The search over several runs in one pass keeps, for each run, exactly the counts
+    its own search keeps (also when a run's knot vectors have empty spans)."""
+    runs = _runs(np.random.default_rng(seed), sizes, spacing, degree, tiny)
     if not runs:
         return
     got = _surviving_counts(runs, degree, gain)
@@ -104,20 +110,7 @@ def test_compiled_search_is_the_numpy_search(degree, sizes, spacing, gain, tiny,
     form (the oracle), run by run, with repeated parameters and with empty spans: it does the
     same floating-point operations in the same order, so even counts at the screen's limit
     agree."""
-    rng = np.random.default_rng(seed)
-    runs = []
-    for r, m in enumerate(sizes):
-        if tiny and r == 0:   # parameters a few ulps apart, far from 0: empty spans
-            t = 1.0 + np.arange(m) * np.spacing(1.0)
-        else:
-            t = _clustered_params(rng, m) + rng.uniform(-1, 1)
-        distinct, mult, _ = _distinct_sorted(t)
-        length = float(t[-1] - t[0])
-        if not length > 0:
-            continue
-        most = min(span_count(length, spacing if not (tiny and r == 0) else length / 50), distinct.shape[0] - degree)
-        if most >= 1:
-            runs.append((t, distinct, mult, most))
+    runs = _runs(np.random.default_rng(seed), sizes, spacing, degree, tiny)
     if not runs:
         return
     got = _surviving_counts(runs, degree, gain)

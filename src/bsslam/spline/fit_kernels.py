@@ -21,20 +21,14 @@ from __future__ import annotations
 import numpy as np
 
 from bsslam.compiled import jit
+from bsslam.spline.kernels import search_right
 
 
 @jit
 def _search_right(a, v):
     """``np.searchsorted(a, v, side="right")`` of a sorted (k,) a: the first index whose
     value exceeds v (k if none)."""
-    lo, hi = 0, a.shape[0]
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if a[mid] <= v:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
+    return search_right(a, 0, a.shape[0], v)
 
 
 @jit

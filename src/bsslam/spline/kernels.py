@@ -26,18 +26,24 @@ from bsslam.compiled import jit
 
 
 @jit
+def search_right(a, lo, hi, v):
+    """``lo + np.searchsorted(a[lo:hi], v, side="right")`` for a sorted run a[lo:hi]: the
+    first index of the run whose value exceeds v (hi if none)."""
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if a[mid] <= v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@jit
 def _piece_of(piece_lo, first, last, t):
     """Global index of the piece of a curve (pieces first … last) holding t: the last piece
     starting at or before t (t inside the curve's domain), as numpy's
-    ``searchsorted(…, side="right") − 1`` finds it."""
-    a, b = first + 1, last + 1          # answer in [first, last]: bisect pieces first+1 … last
-    while a < b:
-        mid = (a + b) >> 1
-        if piece_lo[mid] <= t:
-            a = mid + 1
-        else:
-            b = mid
-    return a - 1
+    ``searchsorted(…, side="right") − 1`` finds it (pieces first+1 … last are bisected)."""
+    return search_right(piece_lo, first + 1, last + 1, t) - 1
 
 
 @jit
