@@ -56,6 +56,9 @@ def test_evaluate_subset_batches_and_derivative_path(cs, seed):
     rng = np.random.default_rng(seed)
     full = batch_of(cs)
     table = full.table
+    # the compiled coefficients are the numpy sum over r, in order r = 0, 1, …, bit for bit
+    window_points = full.control_points[table.window]
+    _assert_same(full.coeffs, (table.power_basis[:, :, :, None] * window_points[:, None, :, :]).sum(axis=2))
     chosen = rng.choice(len(cs), size=rng.integers(1, len(cs) + 1), replace=False)
     part = table.with_control_points(full.control_points, np.concatenate([chosen, chosen[:1]]))
     mine = np.isin(table.piece_curve, chosen)

@@ -120,12 +120,8 @@ class CurveTable:
             raise SplineError(f"control points must have shape ({self.cp_start[-1]}, 2), got {cp.shape}")
         # The searches read the coefficients as (p+1, 2, S) (see CurveBatch.coeffs_t): the
         # batch's (S, p+1, 2) coeffs are a transposed view of that array.
-        if curves is None:
-            coeffs = _piece_coeffs(self.power_basis, cp.take(self.window, axis=0))
-            coeffs_t = np.ascontiguousarray(coeffs.transpose(1, 2, 0))
-        else:
-            coeffs_t = kernels.piece_coefficients(self.power_basis, self.window, cp,
-                                                  np.asarray(curves, dtype=np.intp), self.piece_start)
+        curves = np.arange(self.n_curves) if curves is None else np.asarray(curves, dtype=np.intp)
+        coeffs_t = kernels.piece_coefficients(self.power_basis, self.window, cp, curves, self.piece_start)
         return CurveBatch(self, cp, coeffs_t.transpose(2, 0, 1))
 
     def bboxes(self, control_points: np.ndarray) -> np.ndarray:
@@ -195,8 +191,9 @@ class CurveBatch:
         """Points and derivatives 0 … nder at parameters t (m,) (clamped) on curves (m,):
         (nder+1, m, 2)."""
         if nder == 0:
-            # compiled point by point (kernels.evaluate_points): Horner as _horner_points
-            # does it, the piece found as _search finds it; a NaN parameter gives a NaN point
+            # compiled point by point (kernels.evaluate_points): the piece found as _search
+            # finds it, Horner as horner_with_derivatives does it; a NaN parameter gives a
+            # NaN point
             table = self.table
             t = np.ascontiguousarray(t, dtype=float)
             curve = np.asarray(curve, dtype=np.intp)
@@ -311,15 +308,6 @@ def concat_tables(a: CurveTable, b: CurveTable) -> CurveTable:
     return table
 
 
-def _piece_coeffs(power_basis: np.ndarray, window_points: np.ndarray) -> np.ndarray:
-    """(S, p+1, 2) Taylor coefficients Σ_r power_basis[s, k, r] · window_points[s, r] of
-    pieces from their (S, p+1, p+1) power-basis matrices and (S, p+1, 2) control points.
-    (One broadcast product and a sum over r, which numpy adds in order r = 0, 1, … as the
-    written-out loop did: numpy's einsum and batched matmul are slow on many 4 × 4
-    products, and round differently.)"""
-    return (power_basis[:, :, :, None] * window_points[:, None, :, :]).sum(axis=2)
-
-
 def _search(keys: np.ndarray, curve: np.ndarray, t: np.ndarray) -> np.ndarray:
     """(m,) global piece of parameters t (m,), each inside the domain of its curve (m,):
     one exact lexicographic search of the complex keys ``curve + 1j·t`` among
@@ -425,21 +413,6 @@ def _ray_newton(batch: CurveBatch, rays: _Rays, t: np.ndarray, max_range: float
                               rays.curve, np.ascontiguousarray(ox), np.ascontiguousarray(oy), rays.cos, rays.sin,
                               np.asarray(t, dtype=float), float(max_range), _RAY_MAX_NEWTON, _STEP_TOLERANCE,
                               _ROOT_TOLERANCE_M)
-
-
-def _horner_points(c: np.ndarray, u: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """(2, m) points of pieces with coefficients c (p+1, 2, m) at local u (m,): Horner,
-    the same operations as horner_with_derivatives with nder = 0."""
-    v = c[-1]
-    if c.shape[0] == 1:
-        if out is None:
-            return v.copy()
-        np.copyto(out, v)
-        return out
-    for i in range(c.shape[0] - 2, 0, -1):
-        v = v * u
-        v += c[i]
-    return np.add(v * u, c[0], out=out)
 
 
 def _ray_global_search(batch: CurveBatch, rays: _Rays, max_range: float, samples_per_span: int):

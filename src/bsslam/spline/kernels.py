@@ -144,7 +144,8 @@ def _value_slope_curvature(coeffs_t, piece, u):
 
 @jit
 def _point(coeffs_t, piece, u):
-    """Point (x, y) of a piece at local u: ``batch._horner_points``' operations."""
+    """Point (x, y) of a piece at local u: Horner, the operations of
+    ``pieces.horner_with_derivatives`` with nder = 0."""
     n = coeffs_t.shape[0]
     vx, vy = coeffs_t[n - 1, 0, piece], coeffs_t[n - 1, 1, piece]
     if n == 1:
@@ -373,7 +374,7 @@ def bboxes(control_points, cp_start):
 def piece_coefficients(power_basis, window, control_points, curves, piece_start):
     """(p+1, 2, S) Taylor coefficients of the pieces of ``curves`` (NaN for every other
     piece): Σ_r power_basis[s, k, r] · control_points[window[s, r]], summed in order
-    r = 0, 1, … as ``batch._piece_coeffs``' numpy sum adds them.
+    r = 0, 1, … as a numpy sum over r adds them (the tests keep that form as the oracle).
 
     Args:
         power_basis: (S, p+1, p+1); window: (S, p+1) control-point rows of each piece;
