@@ -127,6 +127,15 @@ def test_run_on_a_missing_file_names_it(tmp_path):
     assert result.exit_code == 2 and "nope.clf" in result.output
 
 
+def test_an_error_names_a_long_or_bracketed_path_whole(tmp_path):
+    """The message is not wrapped at the terminal width (a pytest temp path once pushed
+    "nope.clf" across a line break) nor read as rich markup ("[odd]" would vanish)."""
+    folder = tmp_path / ("x" * 90) / "[odd]"
+    folder.mkdir(parents=True)
+    result = runner.invoke(app, ["run", str(folder / "nope.clf"), "--out", str(tmp_path)])
+    assert result.exit_code == 2 and str(folder / "nope.clf") in result.output
+
+
 def test_evaluate_json_on_a_shifted_copy(tmp_path):
     t = np.arange(50.0)
     ref = np.column_stack([t, np.cos(t / 8), np.sin(t / 8), t / 8])

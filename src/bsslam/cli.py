@@ -11,6 +11,7 @@ from typing import Iterator, Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
@@ -60,7 +61,9 @@ def next_phase(update, description: str):
 
 
 def fail(exc: Exception) -> None:
-    console.print(f"[red]error:[/red] {exc}")
+    # unwrapped and unparsed: the message names files and lines, which must stay whole (and
+    # copyable) whatever the terminal width, and a "[…]" in a path is not rich markup
+    console.print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)
     raise typer.Exit(2)
 
 
