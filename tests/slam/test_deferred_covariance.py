@@ -24,6 +24,8 @@ def assert_reads_match(state, dense, cols):
     np.testing.assert_allclose(state.block(cols[2:], cols), dense[np.ix_(cols[2:], cols)], atol=1e-12)
     np.testing.assert_allclose(state.diagonal(cols), np.diag(dense)[cols], atol=1e-12)
     np.testing.assert_allclose(state.pose_covariance, dense[:3, :3], atol=1e-12)
+    v = np.linspace(-1.0, 2.0, cols.shape[0])
+    np.testing.assert_allclose(state.columns_times(cols, v), dense[:, cols] @ v, atol=1e-12)
 
 
 def test_pending_updates_read_and_fold_like_the_dense_covariance():

@@ -53,6 +53,37 @@ def test_stacked_gain_equals_dense_ekf(m):
     np.testing.assert_allclose(gain.S_diag, np.diag(S), rtol=1e-12)
 
 
+def test_a_gain_on_working_rows_corrects_them_and_the_whole_state_like_the_dense_ekf():
+    """The iterations read P only on working rows (the pose and the observed splines);
+    the whole state is corrected once, from the same gain, with a deferred update pending."""
+    from bsslam.errors import FilterError
+    from bsslam.slam.ekf import CovarianceColumns
+
+    rng = np.random.default_rng(5)
+    n, m, R = 40, 12, 1e-4
+    state, P0, H_c, H = dense_problem(rng, n, m, COLS)
+    W = rng.normal(size=(COLS.size, 4)) * 0.05   # a pending update: P = base − B G Bᵀ
+    state.subtract_column_update(COLS, W)
+    Z = P0[:, COLS] @ W
+    P = P0 - Z @ Z.T
+    assert state.pending_rank > 0
+    work = np.array([0, 1, 2, 4, 5, 6, 7, 8, 20, 21, 22, 30])
+    columns = CovarianceColumns(state, work)
+    np.testing.assert_allclose(columns.get(COLS), P[np.ix_(work, COLS)], atol=1e-12)
+    np.testing.assert_allclose(columns.block(COLS), P[np.ix_(COLS, COLS)], atol=1e-12)
+    nu = rng.normal(size=m) * 0.01
+    gain = StackedGain(columns, COLS, H_c, R)
+    K = P @ H.T @ np.linalg.inv(H @ P @ H.T + R * np.eye(m))
+    dx_work, nis = gain.correction(nu)
+    np.testing.assert_allclose(dx_work, (K @ nu)[work], atol=1e-12)
+    np.testing.assert_allclose(gain.state_correction(nu), K @ nu, atol=1e-12)
+    assert state.pending_rank > 0   # read without folding
+    with pytest.raises(FilterError, match="outside the working rows"):
+        columns.get(np.array([0, 1, 2, 9]))
+    with pytest.raises(FilterError, match="start with the pose"):
+        CovarianceColumns(state, np.array([1, 2, 3]))
+
+
 def test_gate_variances_prior_and_posterior_equal_dense_formulas():
     """The filter gates at the prior with diag(H P Hᵀ) + R and at the corrected estimate with
     diag(H' P⁺ H'ᵀ) + R, for a relinearised H' on other columns."""

@@ -17,7 +17,7 @@ from scipy.linalg.lapack import dgeqrf, dpotrf, dtrtrs
 from scipy.stats import chi2
 
 from bsslam.errors import FilterError
-from bsslam.slam.state import JointState
+from bsslam.slam.state import POSE, JointState
 
 
 def gate_threshold(probability: float) -> float:
@@ -35,28 +35,45 @@ def innovation_variances(P: np.ndarray | CovarianceColumns, cols: np.ndarray, H_
 
 class CovarianceColumns:
     """``P[:, cols]`` of a covariance that does not change, for the repeated requests of one
-    iterated update: gathering P's entries is the largest cost of a gain after the
-    covariance update itself. Each state index is gathered once, as a row of P (P is
-    symmetric, and its rows are contiguous); a request is then served from those rows.
+    iterated update, on a working set of rows.
+
+    The iterations only need the correction on the entries they relinearise (the pose and
+    the observed splines' control points: ``rows``); the whole state's correction is
+    needed once, at the end (:meth:`times`). So each requested state index is gathered once,
+    as the row ``P[i, rows]`` (P is symmetric), and the requests are served from those; with
+    a :class:`JointState` this reads its pending update on ``rows`` only, not on all n.
 
     Args:
-        source: the (n, n) symmetric covariance, or a :class:`JointState` (its rows are
-            then gathered without folding its pending update); must not change while this
-            object is used.
+        source: the (n, n) symmetric covariance, or a :class:`JointState` (read without
+            folding its pending update); must not change while this object is used.
+        rows: (w,) sorted state indices starting with the pose (0, 1, 2), a superset of
+            every ``cols`` requested; all n when None.
     """
 
-    def __init__(self, source: np.ndarray | JointState):
-        self._gather = source.rows if isinstance(source, JointState) else (lambda rows: source[rows])
+    def __init__(self, source: np.ndarray | JointState, rows: np.ndarray | None = None):
         n = source.size if isinstance(source, JointState) else source.shape[0]
+        self.rows = np.arange(n) if rows is None else np.asarray(rows, dtype=np.intp)
+        if self.rows.shape[0] < 3 or np.any(self.rows[:3] != POSE):
+            raise FilterError("covariance columns: the working rows must start with the pose")
+        self._source = source
+        self._position = np.full(n, -1, dtype=np.intp)   # place of each state index in ``rows``
+        self._position[self.rows] = np.arange(self.rows.shape[0])
         self._slot = np.full(n, -1, dtype=np.intp)   # row of _rows holding each state index
-        self._rows = np.empty((64, n))                 # P[i, :] of the indices gathered so far
+        self._rows = np.empty((64, self.rows.shape[0]))   # P[i, rows] of the indices gathered so far
         self._count = 0
         self._last: tuple[np.ndarray, np.ndarray] | None = None
+
+    def _gather(self, index: np.ndarray) -> np.ndarray:
+        if isinstance(self._source, JointState):
+            return self._source.block(index, self.rows)
+        return self._source[np.ix_(index, self.rows)]
 
     def _slots(self, cols: np.ndarray) -> np.ndarray:
         slot = self._slot[cols]
         missing = cols[slot < 0]
         if missing.size:
+            if np.any(self._position[missing] < 0):
+                raise FilterError("covariance columns: a requested index is outside the working rows")
             new = np.unique(missing)
             end = self._count + new.shape[0]
             if end > self._rows.shape[0]:
@@ -70,7 +87,7 @@ class CovarianceColumns:
         return slot
 
     def get(self, cols: np.ndarray) -> np.ndarray:
-        """(n, c) ``P[:, cols]`` (a transposed view of gathered rows; do not modify it)."""
+        """(w, c) ``P[rows, cols]`` (a transposed view of gathered rows; do not modify it)."""
         if self._last is not None and np.array_equal(self._last[0], cols):
             return self._last[1]
         slot = self._slots(cols)   # may replace self._rows: index it after
@@ -78,10 +95,20 @@ class CovarianceColumns:
         self._last = (cols.copy(), out)
         return out
 
+    def position(self, index: np.ndarray) -> np.ndarray:
+        """(k,) the places of state indices in ``rows`` (the rows of :meth:`get`)."""
+        return self._position[index]
+
     def block(self, cols: np.ndarray) -> np.ndarray:
         """(c, c) ``P[cols][:, cols]``."""
         slot = self._slots(cols)
-        return self._rows[slot][:, cols]
+        return self._rows[slot][:, self._position[cols]]
+
+    def times(self, cols: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """(n,) ``P[:, cols] v`` on the whole state, for (c,) ``v``."""
+        if isinstance(self._source, JointState):
+            return self._source.columns_times(cols, v)
+        return self._source[:, cols] @ v
 
 
 class StackedGain:
@@ -98,9 +125,10 @@ class StackedGain:
     def __init__(self, P: np.ndarray | CovarianceColumns, cols: np.ndarray, H_c: np.ndarray,
                  range_variance: float):
         self.cols = cols
-        # (n, c): the only columns of P read (read only)
-        self.P_c = _columns_of(P).get(cols)
-        S = (H_c @ self.P_c[cols]) @ H_c.T
+        self._columns = _columns_of(P)
+        # (w, c): the only columns of P read, on the working rows (read only)
+        self.P_c = self._columns.get(cols)
+        S = (H_c @ self.P_c[self._columns.position(cols)]) @ H_c.T
         S.flat[:: S.shape[0] + 1] += range_variance     # the diagonal, without index arrays
         self.S_diag = S.diagonal().copy()
         # LAPACK directly: the scipy.linalg front ends cost more than these small solves
@@ -111,9 +139,14 @@ class StackedGain:
         self.Y = _lower_solve(L, H_c)   # Hᵀ S⁻¹ H = Yᵀ Y
 
     def correction(self, innovation: np.ndarray) -> tuple[np.ndarray, float]:
-        """(dx (n,), NIS): the mean correction P Hᵀ S⁻¹ ν and ν S⁻¹ ν."""
+        """(dx (w,), NIS): the mean correction P Hᵀ S⁻¹ ν on the working rows (all n for a
+        plain covariance; see :class:`CovarianceColumns`) and ν S⁻¹ ν."""
         w = _lower_solve(self.L, innovation)
         return self.P_c @ (self.Y.T @ w), float(w @ w)
+
+    def state_correction(self, innovation: np.ndarray) -> np.ndarray:
+        """(n,) the mean correction P Hᵀ S⁻¹ ν on the whole state."""
+        return self._columns.times(self.cols, self.Y.T @ _lower_solve(self.L, innovation))
 
     def posterior_variances(self, P: np.ndarray | CovarianceColumns, cols: np.ndarray, H_c: np.ndarray,
                             range_variance: float) -> np.ndarray:
@@ -121,7 +154,7 @@ class StackedGain:
         P⁺ = P − P Hᵀ S⁻¹ H P of this gain, without forming P⁺ beyond those columns.
         ``P`` is the prior (n, n) or its :class:`CovarianceColumns`."""
         P = _columns_of(P)
-        P_cg, P_cc = P.get(self.cols)[cols], P.block(cols)
+        P_cg, P_cc = P.get(self.cols)[P.position(cols)], P.block(cols)
         Z = P_cg @ self.Y.T
         P_post = P_cc - Z @ Z.T
         return np.einsum("ij,ij->i", H_c @ P_post, H_c) + range_variance

@@ -399,7 +399,10 @@ class SplineSLAM:
         # so after a poorly predicted step a tight gate drops exactly the beams that disagree
         # with the prior. Gross outliers go first (loose gate at the prior); the real gate is
         # applied at the first corrected estimate with posterior variances.
-        columns = CovarianceColumns(self.state)   # P's columns, without folding its pending update
+        # the entries a relinearisation reads: the pose and the beams' splines (the subsets
+        # selected below keep to these curves); the rest of the state is corrected once, at the end
+        work = np.concatenate([POSE, mc.state_indices(beams.used_curves)])
+        columns = CovarianceColumns(self.state, work)   # P[work, cols], without folding the pending update
         s_diag = innovation_variances(columns, lin.cols, lin.H_c, R)
         coarse = lin.residual ** 2 <= self._loose_gate * s_diag
         report.drop("gate", int((~coarse).sum()))
@@ -407,7 +410,8 @@ class SplineSLAM:
             return
         beams, lin = self._select(beams, lin, coarse)
         gain = StackedGain(columns, lin.cols, lin.H_c, R)
-        x_i = x0 + gain.correction(lin.residual)[0]
+        x_i = x0.copy()
+        x_i[work] += gain.correction(lin.residual)[0]
         lin = self._linearize(beams, x_i, offset, None)
         if lin is None:
             return
@@ -426,12 +430,13 @@ class SplineSLAM:
             # IEKF: ν_i = z − h(x_i) − H_i (x₀ − x_i)
             nu = lin.residual - lin.H_c @ (x0[lin.cols] - x_i[lin.cols])
             dx, nis = gain.correction(nu)
-            x_new = x0 + dx
+            x_new = x0.copy()
+            x_new[work] += dx
             step = np.abs(x_new[:3] - x_i[:3])
             x_i = x_new
             if step[0] < 1e-4 and step[1] < 1e-4 and step[2] < 1e-5:  # 0.1 mm, 0.01 mrad: far below σ
                 break
-        self.state.x[:] = x_i
+        self.state.x[:] = x0 + gain.state_correction(nu)
         gain.update_covariance(self.state)
         self.state.x[2] = wrap_angle(self.state.x[2])
         for c in beams.used_curves:

@@ -56,6 +56,12 @@ class MapCurves:
         return MapCurves(self.features + list(features), table, np.vstack([self.state_rows, rows]),
                          np.vstack([self._fixed, fixed]))
 
+    def state_indices(self, curves: np.ndarray) -> np.ndarray:
+        """(k,) sorted state indices of the control points of ``curves`` (none for fixed ones)."""
+        start = self.table.cp_start
+        rows = np.concatenate([self.state_rows[start[c] : start[c + 1]].ravel() for c in curves])
+        return np.unique(rows[rows >= 0])
+
     def control_points(self, x: np.ndarray) -> np.ndarray:
         """(N, 2) stacked control points at the state mean ``x`` (m); do not modify them."""
         if self._static:
