@@ -8,6 +8,7 @@ import scipy.sparse
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.interpolate import BSpline
+from basis_oracle import _basis_triangle, _derivatives_from_triangle
 from spline_cases import domain_samples, knot_vectors
 
 from bsslam.spline import basis_functions, clamped_knots, collocation_matrix, find_span
@@ -98,7 +99,7 @@ def test_collocation_matrix_equals_scipy_design_matrix(case, seed):
 @given(case=knot_vectors(), seed=st.integers(0, 2**32 - 1))
 def test_values_alone_are_the_triangle_column_bit_for_bit(case, seed):
     """The values-only path (nder = 0) repeats the full triangle's operations exactly."""
-    from bsslam.spline.basis import _basis_triangle, _basis_values
+    from bsslam.spline.basis import _basis_values
 
     degree, knots = case
     t = domain_samples(knots, degree, np.random.default_rng(seed))
@@ -106,6 +107,18 @@ def test_values_alone_are_the_triangle_column_bit_for_bit(case, seed):
     np.testing.assert_array_equal(_basis_values(knots, degree, t, span),
                                   _basis_triangle(knots, degree, t, span)[:, degree])
     np.testing.assert_array_equal(basis_functions(knots, degree, t)[1][0], basis_functions(knots, degree, t, 1)[1][0])
+
+
+@SETTINGS
+@given(case=knot_vectors(), seed=st.integers(0, 2**32 - 1), nder=st.integers(0, 5))
+def test_compiled_derivatives_equal_the_whole_array_form_bit_for_bit(case, seed, nder):
+    """The compiled A2.3 does the whole-array form's operations in its order, per parameter."""
+    degree, knots = case
+    t = domain_samples(knots, degree, np.random.default_rng(seed))
+    span = find_span(knots, degree, t)
+    expected = _derivatives_from_triangle(_basis_triangle(knots, degree, t, span), degree, nder)
+    np.testing.assert_array_equal(basis_functions(knots, degree, t, nder, span=span)[1],
+                                  expected.transpose(0, 2, 1))
 
 
 def test_find_span_at_ends_outside_and_repeated_knots():

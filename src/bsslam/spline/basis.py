@@ -1,8 +1,9 @@
 """B-spline basis functions and their derivatives by the local Cox–de Boor triangle.
 
 Only the degree + 1 basis functions that are non-zero on a knot span are ever computed
-(spec §1, paper (5)), vectorised over many parameter values: the Python loops run over
-the degree and the derivative order only (Piegl & Tiller, *The NURBS Book*, A2.3).
+(spec §1, paper (5)), for many parameter values at once (Piegl & Tiller, *The NURBS Book*,
+A2.2 for the values, vectorised over the parameters; A2.3 for the derivatives, a compiled
+loop over the parameters in :mod:`bsslam.spline.kernels`).
 
 Convention: ``degree`` is the polynomial degree p (order κ = p + 1). Parameters and knots
 are in metres of arc length; the k-th derivative is per metreᵏ.
@@ -14,6 +15,7 @@ import numpy as np
 import scipy.sparse
 
 from bsslam.errors import SplineError
+from bsslam.spline import kernels
 
 
 def as_parameters(t: object) -> np.ndarray:
@@ -50,34 +52,9 @@ def find_span(knots: np.ndarray, degree: int, t: object) -> np.ndarray:
     return np.clip(np.searchsorted(knots, t, side="right") - 1, first, last)
 
 
-def _basis_triangle(knots: np.ndarray, degree: int, t: np.ndarray, span: np.ndarray) -> np.ndarray:
-    """The table ``ndu`` of Piegl & Tiller A2.3, shape (degree+1, degree+1, m).
-
-    Upper triangle ``ndu[r, j]``: the non-zero degree-j basis functions on the span;
-    lower triangle ``ndu[j, r]`` (j > r): the knot differences used as denominators.
-    The differences are > 0 for any non-empty span, so no 0/0 occurs.
-    """
-    m = t.shape[0]
-    ndu = np.empty((degree + 1, degree + 1, m))
-    left = np.empty((degree + 1, m))
-    right = np.empty((degree + 1, m))
-    ndu[0, 0] = 1.0
-    for j in range(1, degree + 1):
-        left[j] = t - knots[span + 1 - j]
-        right[j] = knots[span + j] - t
-        saved = np.zeros(m)
-        for r in range(j):
-            ndu[j, r] = right[r + 1] + left[j - r]
-            temp = ndu[r, j - 1] / ndu[j, r]
-            ndu[r, j] = saved + right[r + 1] * temp
-            saved = left[j - r] * temp
-        ndu[j, j] = saved
-    return ndu
-
-
 def _basis_values(knots: np.ndarray, degree: int, t: np.ndarray, span: np.ndarray) -> np.ndarray:
     """The degree + 1 non-zero basis functions on each parameter's span, shape (degree+1, m):
-    column ``degree`` of :func:`_basis_triangle`, bit for bit, with fewer numpy calls.
+    column ``degree`` of Piegl & Tiller's triangle (A2.3), bit for bit, with fewer numpy calls.
 
     Piegl & Tiller A2.2 with its inner loop over r vectorised: at degree j every new value
     is ``right[r+1]·temp[r] + left[j-r]·temp[r-1]`` with ``temp[r] = N[r] / (right[r+1] +
@@ -103,44 +80,6 @@ def _basis_values(knots: np.ndarray, degree: int, t: np.ndarray, span: np.ndarra
         n[1:j] = down[: j - 1] + up[1:]
         n[0] = up[0]
     return n
-
-
-def _derivatives_from_triangle(ndu: np.ndarray, degree: int, nder: int) -> np.ndarray:
-    """Derivatives 0 … nder of the non-zero basis functions, shape (nder+1, degree+1, m).
-
-    Piegl & Tiller A2.3, second part; every branch depends only on (r, k, degree), so the
-    whole algorithm vectorises over the parameters.
-    """
-    p = degree
-    m = ndu.shape[2]
-    ders = np.zeros((nder + 1, p + 1, m))
-    ders[0] = ndu[:, p]
-    top = min(nder, p)  # derivatives of order > degree vanish
-    for r in range(p + 1):
-        a_prev = np.zeros((p + 1, m))
-        a_next = np.zeros((p + 1, m))
-        a_prev[0] = 1.0
-        for k in range(1, top + 1):
-            d = np.zeros(m)
-            rk, pk = r - k, p - k
-            if r >= k:
-                a_next[0] = a_prev[0] / ndu[pk + 1, rk]
-                d = a_next[0] * ndu[rk, pk]
-            j1 = 1 if rk >= -1 else -rk
-            j2 = k - 1 if r - 1 <= pk else p - r
-            for j in range(j1, j2 + 1):
-                a_next[j] = (a_prev[j] - a_prev[j - 1]) / ndu[pk + 1, rk + j]
-                d = d + a_next[j] * ndu[rk + j, pk]
-            if r <= pk:
-                a_next[k] = -a_prev[k - 1] / ndu[pk + 1, r]
-                d = d + a_next[k] * ndu[r, pk]
-            ders[k, r] = d
-            a_prev, a_next = a_next, a_prev
-    factor = float(p)
-    for k in range(1, top + 1):
-        ders[k] *= factor
-        factor *= p - k
-    return ders
 
 
 def basis_functions(
@@ -179,9 +118,7 @@ def basis_functions(
         span = np.asarray(span, dtype=np.intp).reshape(t.shape)
     if nder == 0:  # the values only (what fits evaluate): no triangle kept
         return span, np.ascontiguousarray(_basis_values(knots, degree, t, span).T)[None]
-    ndu = _basis_triangle(knots, degree, t, span)
-    ders = _derivatives_from_triangle(ndu, degree, nder)
-    return span, np.ascontiguousarray(ders.transpose(0, 2, 1))
+    return span, kernels.basis_derivatives(knots, degree, t, span, nder)
 
 
 def collocation_matrix(

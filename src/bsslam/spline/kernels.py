@@ -435,3 +435,63 @@ def first_per_group(key, group, n_groups):
             best[count] = best[g]
             count += 1
     return best[:count]
+
+
+@jit
+def basis_derivatives(knots, degree, t, span, nder):
+    """Derivatives 0 … nder (per mᵏ) of the degree + 1 non-zero basis functions at each
+    parameter, shape (nder+1, m, degree+1): Piegl & Tiller A2.3 per parameter, with the
+    operations of the whole-array form (the tests' oracle) in its order, so bit for bit the
+    same. ``span`` (m,) must be non-empty knot spans; orders above ``degree`` are zero."""
+    p = degree
+    m = t.shape[0]
+    ders = np.zeros((nder + 1, m, p + 1))
+    top = min(nder, p)  # derivatives of order > degree vanish
+    ndu = np.empty((p + 1, p + 1))
+    left = np.empty(p + 1)
+    right = np.empty(p + 1)
+    a = np.empty((2, p + 1))
+    for i in range(m):
+        ti, s = t[i], span[i]
+        # the triangle: upper part the basis functions of each degree, lower part the
+        # knot differences (denominators, > 0 on a non-empty span)
+        ndu[0, 0] = 1.0
+        for j in range(1, p + 1):
+            left[j] = ti - knots[s + 1 - j]
+            right[j] = knots[s + j] - ti
+            saved = 0.0
+            for r in range(j):
+                ndu[j, r] = right[r + 1] + left[j - r]
+                temp = ndu[r, j - 1] / ndu[j, r]
+                ndu[r, j] = saved + right[r + 1] * temp
+                saved = left[j - r] * temp
+            ndu[j, j] = saved
+        for r in range(p + 1):
+            ders[0, i, r] = ndu[r, p]
+        for r in range(p + 1):
+            a[:, :] = 0.0
+            prev, nxt = 0, 1
+            a[prev, 0] = 1.0
+            for k in range(1, top + 1):
+                d = 0.0
+                rk, pk = r - k, p - k
+                if r >= k:
+                    a[nxt, 0] = a[prev, 0] / ndu[pk + 1, rk]
+                    d = a[nxt, 0] * ndu[rk, pk]
+                j1 = 1 if rk >= -1 else -rk
+                j2 = k - 1 if r - 1 <= pk else p - r
+                for j in range(j1, j2 + 1):
+                    a[nxt, j] = (a[prev, j] - a[prev, j - 1]) / ndu[pk + 1, rk + j]
+                    d = d + a[nxt, j] * ndu[rk + j, pk]
+                if r <= pk:
+                    a[nxt, k] = -a[prev, k - 1] / ndu[pk + 1, r]
+                    d = d + a[nxt, k] * ndu[r, pk]
+                ders[k, i, r] = d
+                prev, nxt = nxt, prev
+    factor = float(p)
+    for k in range(1, top + 1):
+        for i in range(m):
+            for r in range(p + 1):
+                ders[k, i, r] *= factor
+        factor *= p - k
+    return ders
