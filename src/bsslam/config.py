@@ -124,8 +124,10 @@ class ObservationConfig:
             non-linear in the pose there; admitting beams up to 75° makes the filter
             optimistic within 20 steps in simulation.
         beam_stride: use every k-th beam of a segment in the update (1 = all).
-        iterations: Gauss–Newton iterations of the iterated EKF update (1 = the paper's
-            single linearisation).
+        iterations: Gauss–Newton iterations of the iterated EKF update at most (1 = the
+            paper's single linearisation).
+        iteration_tolerance: the iterations stop once a Gauss–Newton step moves every pose
+            component by less than this fraction of its posterior σ (0 = run them all).
     """
 
     sigma_range_m: float = 0.03
@@ -135,6 +137,7 @@ class ObservationConfig:
     max_incidence_rad: float = math.radians(45.0)
     beam_stride: int = 1
     iterations: int = 3
+    iteration_tolerance: float = 0.1
 
     def __post_init__(self) -> None:
         _check(self.sigma_range_m > 0, "observation.sigma_range_m must be > 0")
@@ -144,6 +147,7 @@ class ObservationConfig:
         _check(0 < self.max_incidence_rad < math.pi / 2, "observation.max_incidence_rad must be in (0, π/2)")
         _check(self.beam_stride >= 1, "observation.beam_stride must be ≥ 1")
         _check(self.iterations >= 1, "observation.iterations must be ≥ 1")
+        _check(self.iteration_tolerance >= 0, "observation.iteration_tolerance must be ≥ 0")
 
 
 @dataclass(frozen=True)

@@ -148,6 +148,12 @@ class StackedGain:
         """(n,) the mean correction P Hᵀ S⁻¹ ν on the whole state."""
         return self._columns.times(self.cols, self.Y.T @ _lower_solve(self.L, innovation))
 
+    def pose_variances(self, prior: np.ndarray) -> np.ndarray:
+        """(3,) posterior variances of the pose under this gain, from its ``prior`` (3,)
+        variances: diag(P_pp − P_pc Hᵀ S⁻¹ H P_cp) (m², m², rad²); clipped at 0."""
+        Z = self.Y @ self.P_c[:3].T          # (m, 3)
+        return np.maximum(prior - np.einsum("ij,ij->j", Z, Z), 0.0)
+
     def posterior_variances(self, P: np.ndarray | CovarianceColumns, cols: np.ndarray, H_c: np.ndarray,
                             range_variance: float) -> np.ndarray:
         """(m,) variances H P⁺ Hᵀ + R of beams linearised on ``cols`` under the posterior
