@@ -8,7 +8,7 @@ import pytest
 
 from bsslam.errors import SplineError
 from bsslam.spline import fit_curve
-from bsslam.spline.batch import concat_tables, curve_table
+from bsslam.spline.batch import concat_tables, curve_table, take_curves
 
 
 def _knots(rng, count, degree):
@@ -42,3 +42,30 @@ def test_tables_of_different_degrees_are_refused():
     rng = np.random.default_rng(3)
     with pytest.raises(SplineError):
         concat_tables(curve_table(_knots(rng, 1, 2), [2]), curve_table(_knots(rng, 1, 3), [3]))
+
+
+@pytest.mark.parametrize("degree", [1, 2, 3])
+@pytest.mark.parametrize("keep", [[0], [1, 2, 5], [0, 2, 3, 4, 5], [5]])
+def test_taking_curves_equals_building_them_alone(degree, keep):
+    """take_curves (the filter's pruning) gives the table curve_table builds from the kept
+    knot vectors, bit for bit, including padded windows."""
+    knots = _knots(np.random.default_rng(degree * 7 + len(keep)), 6, degree)
+    degrees = [degree] * 6
+    if degree > 1:
+        degrees[3] = degree - 1   # one lower-degree curve: padded windows
+    full = curve_table(knots, degrees)
+    taken = take_curves(full, np.array(keep))
+    alone = curve_table([knots[c] for c in keep], [degrees[c] for c in keep])
+    for f in dataclasses.fields(alone):
+        np.testing.assert_array_equal(getattr(taken, f.name), getattr(alone, f.name), err_msg=f.name)
+    for name in ("piece_keys", "last_piece"):
+        np.testing.assert_array_equal(getattr(taken, name), getattr(alone, name), err_msg=name)
+
+
+def test_taking_no_curve_or_losing_the_padded_degree_is_refused():
+    rng = np.random.default_rng(4)
+    table = curve_table(_knots(rng, 2, 3) + _knots(rng, 1, 2), [3, 3, 2])
+    with pytest.raises(SplineError):
+        take_curves(table, np.array([], dtype=int))
+    with pytest.raises(SplineError):
+        take_curves(table, np.array([2]))

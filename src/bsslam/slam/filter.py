@@ -570,14 +570,20 @@ class SplineSLAM:
     def remove_features(self, feature_ids) -> None:
         """Delete map splines and their rows/columns of the state, compacting P once."""
         removed = [self.features.pop(fid) for fid in feature_ids]
-        if removed:
-            self._map_changed()
-        idx = [f.state_indices for f in removed if f.in_state]
-        if not idx:
+        if not removed:
             return
-        mapping = self.state.remove(np.concatenate(idx))
-        for g in self.features.values():
-            if g.in_state:
-                g.idx_x, g.idx_y = mapping[g.idx_x], mapping[g.idx_y]
-                if np.any(g.idx_x < 0) or np.any(g.idx_y < 0):  # pragma: no cover - indices are disjoint
-                    raise FilterError("feature indices overlapped")
+        idx = [f.state_indices for f in removed if f.in_state]
+        mapping = self.state.remove(np.concatenate(idx)) if idx else None
+        if self._map is not None:   # the table, with the splines added since, drops their rows
+            if self._map_added:
+                self._map = self._map.with_added(self._map_added)
+                self._map_added.clear()
+            self._map = self._map.without([f.id for f in removed], mapping)
+        if mapping is None:
+            return
+        kept = [g for g in self.features.values() if g.in_state]
+        for g in kept:
+            g.idx_x, g.idx_y = mapping[g.idx_x], mapping[g.idx_y]
+        # one check for all: a per-feature test cost more than the whole removal
+        if kept and np.concatenate([g.idx_x for g in kept] + [g.idx_y for g in kept]).min() < 0:  # pragma: no cover - disjoint
+            raise FilterError("feature indices overlapped")

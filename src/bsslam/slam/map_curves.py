@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from bsslam.slam.features import SplineFeature
-from bsslam.spline.batch import CurveBatch, CurveTable, concat_tables, curve_table
+from bsslam.spline.batch import CurveBatch, CurveTable, concat_tables, curve_table, kept_rows, take_curves
 
 
 class MapCurves:
@@ -55,6 +55,23 @@ class MapCurves:
         table = concat_tables(self.table, curve_table([f.knots for f in features], degrees))
         return MapCurves(self.features + list(features), table, np.vstack([self.state_rows, rows]),
                          np.vstack([self._fixed, fixed]))
+
+    def without(self, removed_ids, mapping: np.ndarray | None) -> MapCurves | None:
+        """This table less the features ``removed_ids``, their rows taken out of the kept
+        ones' (:func:`~bsslam.spline.batch.take_curves`) instead of built again; ``mapping``
+        (old state index → new, from :meth:`JointState.remove`) renumbers the state rows.
+        None when no feature is left."""
+        keep = np.flatnonzero(~np.isin(self.ids, np.asarray(list(removed_ids), dtype=np.intp)))
+        if keep.size == 0:
+            return None
+        features = [self.features[c] for c in keep]
+        if int(self.table.degree[keep].max()) != self.table.p:   # the padding changes: build anew
+            return MapCurves(features)
+        cp, _, _ = kept_rows(self.table.cp_start, keep)
+        rows = self.state_rows[cp]
+        if mapping is not None:
+            rows = np.where(rows >= 0, mapping[np.maximum(rows, 0)], -1)
+        return MapCurves(features, take_curves(self.table, keep), rows, self._fixed[cp])
 
     def state_indices(self, curves: np.ndarray) -> np.ndarray:
         """(k,) sorted state indices of the control points of ``curves`` (none for fixed ones)."""

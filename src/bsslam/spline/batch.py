@@ -308,6 +308,42 @@ def concat_tables(a: CurveTable, b: CurveTable) -> CurveTable:
     return table
 
 
+def kept_rows(start: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rows of the curves ``keep`` (sorted) in an array where curve c owns rows
+    ``start[c] … start[c+1] − 1`` (control points, pieces, breaks): (the rows in order,
+    their new (K+1,) starts, the (K,) row counts)."""
+    counts = start[keep + 1] - start[keep]
+    new_start = np.concatenate([[0], np.cumsum(counts)])
+    rows = np.repeat(start[keep] - new_start[:-1], counts) + np.arange(new_start[-1])
+    return rows, new_start, counts
+
+
+def take_curves(table: CurveTable, keep: np.ndarray) -> CurveTable:
+    """The table of the curves ``keep`` (sorted indices) of ``table``, field for field as
+    :func:`curve_table` would build it from their knot vectors (the filter drops pruned map
+    splines this way). The kept curves must have the table's padded degree as their largest."""
+    keep = np.asarray(keep, dtype=np.intp)
+    if keep.size == 0 or int(table.degree[keep].max()) != table.p:
+        raise SplineError("take_curves keeps at least one curve, and one of the table's padded degree")
+    C = keep.shape[0]
+    pieces, piece_start, n_pieces = kept_rows(table.piece_start, keep)
+    _, cp_start, _ = kept_rows(table.cp_start, keep)
+    breaks, break_start, n_breaks = kept_rows(table.break_start, keep)
+    owner = np.repeat(np.arange(C), n_pieces)
+    piece_lo = table.piece_lo[pieces]
+    # a piece's window rows move with its curve's first control point
+    shift = (cp_start[:-1] - table.cp_start[keep])[owner]
+    out = CurveTable(degree=table.degree[keep], p=table.p, cp_start=cp_start, piece_start=piece_start,
+                     lo=table.lo[keep], hi=table.hi[keep], piece_lo=piece_lo, width=table.width[pieces],
+                     piece_curve=owner, window=table.window[pieces] + shift[:, None], real=table.real[pieces],
+                     power_basis=table.power_basis[pieces],
+                     keys=np.repeat(np.arange(C), n_breaks) + 1j * table.keys.imag[breaks],
+                     break_start=break_start)
+    object.__setattr__(out, "piece_keys", owner + 1j * piece_lo)
+    object.__setattr__(out, "last_piece", piece_start[1:] - 1)
+    return out
+
+
 def _search(keys: np.ndarray, curve: np.ndarray, t: np.ndarray) -> np.ndarray:
     """(m,) global piece of parameters t (m,), each inside the domain of its curve (m,):
     one exact lexicographic search of the complex keys ``curve + 1j·t`` among
