@@ -43,7 +43,7 @@ BINS = [0, 250, 500, 750, 1000, 1250, 1500, 2000, 3000, 10**9]
 # Stages in the order of a scan; each is the total time of the listed callables, which never
 # call one another, so the stages do not overlap. "other" is the rest of step() (beam
 # grouping, row selection, bookkeeping). The covariance columns are gathered inside the S/gain
-# callables. The covariance update is deferred and folded in every few scans (JointState), so
+# callables, which include the mean correction of the whole state. The covariance update is deferred and folded in every few scans (JointState), so
 # its mean, not its median, is its cost per scan.
 STAGES = {
     "predict": [(filter_module, "predict")],
@@ -51,6 +51,7 @@ STAGES = {
     "associate": [(SplineSLAM, "_associate")],
     "linearise": [(SplineSLAM, "_linearize")],
     "S/gain": [(ekf_module.StackedGain, "__init__"), (ekf_module.StackedGain, "correction"),
+               (ekf_module.StackedGain, "state_correction"), (ekf_module.StackedGain, "pose_variances"),
                (ekf_module.StackedGain, "posterior_variances"), (filter_module, "innovation_variances")],
     "covariance update": [(ekf_module.StackedGain, "update_covariance")],
     "enlarge": [(SplineSLAM, "_enlarge")],

@@ -381,9 +381,12 @@ class SplineSLAM:
         """Iterated EKF update (Gauss–Newton on the mean, one covariance update at the end).
 
         The paper's filter linearises once. Relinearising the range model at the corrected
-        estimate costs O(n·c) per iteration — negligible next to the O(n²) covariance update —
-        and removes most of the linearisation error after a poorly predicted turn, which is
-        where the single-step filter becomes inconsistent.
+        estimate costs a gain and a linearisation per iteration, the corrections computed on
+        the working rows only (the pose and the beams' splines; the whole state is corrected
+        once, at the end), and removes most of the linearisation error after a poorly
+        predicted turn, which is where the single-step filter becomes inconsistent. The
+        iterations stop once a step moves every pose component by less than
+        ``observation.iteration_tolerance`` of its posterior σ.
         """
         beams = self._beam_groups(observed, matches)
         report.matched_splines += sum(1 for m in matches if m)
