@@ -1,6 +1,6 @@
-"""The filter's map-curve table, grown spline by spline as the map is built and shrunk as
-unconfirmed splines are pruned, is the table built from scratch from its features (the one
-every search of the filter reads)."""
+"""The filter's map-curve table, grown spline by spline as the map is built, updated in place
+as splines are extended and shrunk as unconfirmed ones are pruned, is the table built from
+scratch from its features (the one every search of the filter reads)."""
 
 import dataclasses
 
@@ -14,13 +14,16 @@ from bsslam.slam import SplineSLAM
 from bsslam.slam.map_curves import MapCurves
 
 
-def test_grown_and_pruned_table_equals_the_rebuilt_one(monkeypatch):
+def test_grown_extended_and_pruned_table_equals_the_rebuilt_one(monkeypatch):
     grown = []
     with_added = MapCurves.with_added
     monkeypatch.setattr(MapCurves, "with_added", lambda self, f: grown.append(len(f)) or with_added(self, f))
     shrunk = []
     without = MapCurves.without
     monkeypatch.setattr(MapCurves, "without", lambda self, *a: shrunk.append(1) or without(self, *a))
+    replaced = []
+    with_replaced = MapCurves.with_replaced
+    monkeypatch.setattr(MapCurves, "with_replaced", lambda self, *a: replaced.append(1) or with_replaced(self, *a))
     sim = SimConfig()
     data = simulate(get_world("mixed"), sim, seed=5, steps=100)
     config = simulation_config(SLAMConfig(), sim).replace(relocalize=False)
@@ -29,6 +32,7 @@ def test_grown_and_pruned_table_equals_the_rebuilt_one(monkeypatch):
     kept = slam._map_curves()
     assert len(grown) > 3, "the table never grew in place"
     assert len(shrunk) > 3, "no pruning shrank the table in place"
+    assert len(replaced) > 3, "no extension replaced its spline's rows in place"
     fresh = MapCurves(list(slam.features.values()))
     for f in dataclasses.fields(fresh.table):
         np.testing.assert_array_equal(getattr(kept.table, f.name), getattr(fresh.table, f.name), err_msg=f.name)

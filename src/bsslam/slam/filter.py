@@ -25,8 +25,8 @@ from bsslam.slam.map_curves import MapCurves
 from bsslam.slam.motion import motion_noise, predict
 from bsslam.slam.observation import laser_pose, predict_beams_batch
 from bsslam.slam.state import POSE, JointState
-from bsslam.spline import FitResult, closest_point, extend_curve, fit_curve
-from bsslam.spline.batch import curve_table
+from bsslam.spline import FitResult, extend_curve, fit_curve
+from bsslam.spline.batch import CurveTable, closest_points_batch, curve_table
 from bsslam.trajectory import wrap_angle
 
 
@@ -239,22 +239,30 @@ class SplineSLAM:
         return features.splines
 
     def _map_curves(self) -> MapCurves | None:
-        """The map splines' batch table, rebuilt only after a spline was added, extended or
-        removed (:meth:`_map_grew`, :meth:`_map_changed`)."""
+        """The map splines' batch table. It is built once and then kept up to date: splines
+        added join it at the next use (:meth:`_map_grew`), an extended spline's rows are
+        replaced (:meth:`_map_extended`), removed splines' rows taken out
+        (:meth:`remove_features`), each the table a rebuild would give, bit for bit."""
         if not self.features:
             return None
         if self._map is None:
             self._map = MapCurves(list(self.features.values()))
             self._map_added.clear()
-        elif self._map_added:
-            self._map = self._map.with_added(self._map_added)
-            self._map_added.clear()
+        self._merge_added()
         return self._map
 
-    def _map_changed(self) -> None:
-        """A spline was extended or removed: the table is built again."""
-        self._map = None
+    def _merge_added(self) -> None:
+        """The splines added since the table was last brought up to date join it."""
+        if self._map is not None and self._map_added:
+            self._map = self._map.with_added(self._map_added)
         self._map_added.clear()
+
+    def _map_extended(self, feature: SplineFeature, table: CurveTable) -> None:
+        """``feature`` was extended (new knots, state rows): its rows of the map table are
+        replaced by ``table``, its own one-curve table."""
+        if self._map is not None:
+            self._merge_added()
+            self._map = self._map.with_replaced(feature, table)
 
     def _map_grew(self, feature: SplineFeature) -> None:
         """A spline was added (after all others, in ``features`` order): it joins the table."""
@@ -533,7 +541,9 @@ class SplineSLAM:
                                max_noise_gain=self.config.spline.max_noise_gain)
         except FitError:
             return False
-        _, _, dist = closest_point(ext.curve, bp.points)
+        # the fit check, by the compiled search (closest_point's sampling, starts and Newton)
+        fitted = curve_table([ext.curve.knots], [ext.curve.degree]).with_control_points(ext.curve.control_points)
+        _, _, dist = closest_points_batch(fitted, np.zeros(bp.points.shape[0], dtype=np.intp), bp.points)
         if np.sqrt(np.mean(dist ** 2)) > self.config.mapping.max_extension_rms_m:
             return False
         n_old, m = curve.n_control, ext.n_added
@@ -541,7 +551,7 @@ class SplineSLAM:
         if not f.in_state:
             f.fixed_control_points = ext.curve.control_points.copy()
             f.knots = ext.curve.knots.copy()
-            self._map_changed()
+            self._map_extended(f, fitted.table)
             return True
         block = extension_block(new_rows, n_old, f.idx_x, f.idx_y, curve.control_points, bp)
         new_idx = self.state.append_dependent(block.mean, block.cols, block.J, block.noise(self._range_variance))
@@ -553,7 +563,7 @@ class SplineSLAM:
         else:
             f.idx_x, f.idx_y = np.concatenate([new_x, f.idx_x]), np.concatenate([new_y, f.idx_y])
         f.knots = ext.curve.knots.copy()
-        self._map_changed()
+        self._map_extended(f, fitted.table)
         return True
 
     def _prune(self) -> int:
@@ -578,9 +588,7 @@ class SplineSLAM:
         idx = [f.state_indices for f in removed if f.in_state]
         mapping = self.state.remove(np.concatenate(idx)) if idx else None
         if self._map is not None:   # the table, with the splines added since, drops their rows
-            if self._map_added:
-                self._map = self._map.with_added(self._map_added)
-                self._map_added.clear()
+            self._merge_added()
             self._map = self._map.without([f.id for f in removed], mapping)
         if mapping is None:
             return

@@ -10,6 +10,8 @@ mean whenever it moves.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from bsslam.slam.features import SplineFeature
@@ -55,6 +57,24 @@ class MapCurves:
         table = concat_tables(self.table, curve_table([f.knots for f in features], degrees))
         return MapCurves(self.features + list(features), table, np.vstack([self.state_rows, rows]),
                          np.vstack([self._fixed, fixed]))
+
+    def with_replaced(self, feature: SplineFeature, table: CurveTable) -> MapCurves:
+        """This table with ``feature`` (already in it, e.g. just extended) given new knots and
+        state rows: ``table`` is its own one-curve table. The other curves' rows are kept
+        (:func:`~bsslam.spline.batch.take_curves`) instead of built again."""
+        c, C = self.index[feature.id], len(self.features)
+        parts = [np.arange(c), np.arange(c + 1, C)]
+        if table.p != self.table.p or any(k.size and self.table.degree[k].max() != self.table.p for k in parts):
+            return MapCurves(self.features)   # the padding changes: build anew
+        def part(curves):   # (table, state rows, fixed points) of other curves, or None
+            if not curves.size:
+                return None
+            cp, _, _ = kept_rows(self.table.cp_start, curves)
+            return take_curves(self.table, curves), self.state_rows[cp], self._fixed[cp]
+
+        seq = [p for p in (part(parts[0]), (table, *_rows_of([feature])), part(parts[1])) if p is not None]
+        joined = functools.reduce(concat_tables, [p[0] for p in seq])
+        return MapCurves(self.features, joined, np.vstack([p[1] for p in seq]), np.vstack([p[2] for p in seq]))
 
     def without(self, removed_ids, mapping: np.ndarray | None) -> MapCurves | None:
         """This table less the features ``removed_ids``, their rows taken out of the kept
