@@ -8,6 +8,7 @@ bench:
 	python benchmarks/bench_spline.py
 	python benchmarks/bench_segment.py
 	python benchmarks/bench_filter.py
+	python benchmarks/bench_filter.py --defaults
 experiments:
 	bsslam experiment fit-knots --out results/fit-knots
 	bsslam experiment fit-order --out results/fit-order
