@@ -65,7 +65,8 @@ class MapCurves:
         c, C = self.index[feature.id], len(self.features)
         parts = [np.arange(c), np.arange(c + 1, C)]
         if table.p != self.table.p or any(k.size and self.table.degree[k].max() != self.table.p for k in parts):
-            return MapCurves(self.features)   # the padding changes: build anew
+            return MapCurves(self.features)   # a part without the padded degree: build anew
+
         def part(curves):   # (table, state rows, fixed points) of other curves, or None
             if not curves.size:
                 return None
