@@ -139,3 +139,16 @@ def test_prediction_transform_appends_and_removal_carry_the_pending_term():
     dense = column_update(dense, np.array([0, 1, 2, 8]), W[:4])
     np.testing.assert_allclose(state.P, dense, atol=1e-12)
     np.testing.assert_array_equal(state.P, state.P.T)
+
+
+def test_compiled_block_read_equals_numpy_indexing():
+    """take_block serves every block read: unsorted and repeated indices, on a view of a
+    padded buffer (the state's layout), give exactly numpy's P[np.ix_(rows, cols)]."""
+    from bsslam.slam.kernels import take_block
+
+    rng = np.random.default_rng(11)
+    P = rng.normal(size=(70, 78))[:60, :60]
+    rows = np.array([5, 0, 59, 5, 31], dtype=np.intp)
+    cols = rng.permutation(60)[:17].astype(np.intp)
+    np.testing.assert_array_equal(take_block(P, rows, cols), P[np.ix_(rows, cols)])
+    assert take_block(P, rows[:0], cols).shape == (0, 17)

@@ -17,6 +17,7 @@ from scipy.linalg.lapack import dgeqrf, dpotrf, dtrtrs
 from scipy.stats import chi2
 
 from bsslam.errors import FilterError
+from bsslam.slam.kernels import take_block
 from bsslam.slam.state import POSE, JointState
 
 
@@ -66,7 +67,7 @@ class CovarianceColumns:
     def _gather(self, index: np.ndarray) -> np.ndarray:
         if isinstance(self._source, JointState):
             return self._source.block(index, self.rows)
-        return self._source[np.ix_(index, self.rows)]
+        return take_block(self._source, index, self.rows)
 
     def _slots(self, cols: np.ndarray) -> np.ndarray:
         slot = self._slot[cols]
@@ -102,7 +103,7 @@ class CovarianceColumns:
     def block(self, cols: np.ndarray) -> np.ndarray:
         """(c, c) ``P[cols][:, cols]``."""
         slot = self._slots(cols)
-        return self._rows[slot][:, self._position[cols]]
+        return take_block(self._rows, slot, self._position[cols])
 
     def times(self, cols: np.ndarray, v: np.ndarray) -> np.ndarray:
         """(n,) ``P[:, cols] v`` on the whole state, for (c,) ``v``."""

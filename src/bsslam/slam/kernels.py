@@ -1,5 +1,6 @@
-"""Compiled steps of the filter: data association (:func:`bsslam.slam.association.associate`)
-and the stacked Jacobian of a scan's beams (:func:`stack_jacobian`).
+"""Compiled steps of the filter: data association (:func:`bsslam.slam.association.associate`),
+the stacked Jacobian of a scan's beams (:func:`stack_jacobian`) and the covariance's block
+reads (:func:`take_block`).
 
 A scan's association is tens of (observed, map) spline pairs, each asking a few numbers
 (two boxes, a few dozen control-point distances, four curve points). Written as
@@ -297,3 +298,17 @@ def stack_jacobian(rows, window, real, state_rows, H_cp_x, H_cp_y, H_pose, n_sta
                 if idx >= 0:
                     H_c[a, pos[idx]] = H_cp_y[j, r]
     return cols, H_c
+
+
+@jit
+def take_block(P, rows, cols):
+    """(r, c) ``P[np.ix_(rows, cols)]`` (a new array): the filter reads blocks of tens of rows
+    of its covariance several times a scan, where numpy's open-mesh indexing costs 4–6× this
+    loop (53 × 75 entries: 36 µs against 8 µs). The indices must be valid: they are not
+    checked."""
+    out = np.empty((rows.shape[0], cols.shape[0]))
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        for j in range(cols.shape[0]):
+            out[i, j] = P[r, cols[j]]
+    return out

@@ -33,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from bsslam.errors import FilterError
+from bsslam.slam.kernels import take_block
 
 POSE = np.arange(3)
 
@@ -148,8 +149,8 @@ class JointState:
         return out
 
     def block(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """(r, c) ``P[np.ix_(rows, cols)]`` (a new array)."""
-        out = self.base[np.ix_(rows, cols)]
+        """(r, c) ``P[np.ix_(rows, cols)]`` (a new array); indices of the live state."""
+        out = take_block(self.base, np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp))
         if self._a:
             out -= self._pending_rows(rows) @ self._B[cols, : self._a].T
         return out
