@@ -69,3 +69,31 @@ def test_taking_no_curve_or_losing_the_padded_degree_is_refused():
         take_curves(table, np.array([], dtype=int))
     with pytest.raises(SplineError):
         take_curves(table, np.array([2]))
+
+
+def test_a_curve_without_a_non_empty_span_is_refused():
+    """All knots equal, or too few knots for the degree: no piece, a clear error."""
+    good = _knots(np.random.default_rng(6), 1, 3)[0]
+    for bad in (np.zeros(8), np.array([0.0, 0.0, 1.0, 1.0])):
+        with pytest.raises(SplineError, match="non-empty domain"):
+            curve_table([good, bad], [3, 3])
+
+
+def test_table_fields_equal_a_reference_built_curve_by_curve():
+    """curve_table's compiled layout against the layout of each curve built alone and
+    shifted: rows, pieces, breaks and padded windows (one lower-degree curve)."""
+    knots = _knots(np.random.default_rng(8), 4, 3)
+    knots[2] = _knots(np.random.default_rng(9), 1, 2)[0]
+    degrees = [3, 3, 2, 3]
+    full = curve_table(knots, degrees)
+    for c, (k, d) in enumerate(zip(knots, degrees)):
+        alone = curve_table([k], [d])
+        pieces = slice(full.piece_start[c], full.piece_start[c + 1])
+        np.testing.assert_array_equal(full.piece_lo[pieces], alone.piece_lo)
+        np.testing.assert_array_equal(full.width[pieces], alone.width)
+        np.testing.assert_array_equal(full.keys[full.break_start[c]:full.break_start[c + 1]].imag, alone.keys.imag)
+        np.testing.assert_array_equal(full.window[pieces, : d + 1] - full.cp_start[c], alone.window)
+        assert full.real[pieces, : d + 1].all() and not full.real[pieces, d + 1:].any()
+        # padding repeats the last real row
+        np.testing.assert_array_equal(full.window[pieces, d + 1:], full.window[pieces, d : d + 1].repeat(3 - d, axis=1))
+        assert (full.lo[c], full.hi[c]) == (alone.lo[0], alone.hi[0])

@@ -222,25 +222,12 @@ def curve_table(knots: list[np.ndarray], degrees: list[int] | np.ndarray) -> Cur
         raise SplineError("curve_table needs one degree per knot vector, and at least one curve")
     p = int(degrees.max())
     n_knots = np.array([k.shape[0] for k in knots], dtype=np.intp)
-    n_cp = n_knots - degrees - 1
     K = np.concatenate(knots).astype(float, copy=False)
-    knot_start = np.concatenate([[0], np.cumsum(n_knots)])
-    cp_start = np.concatenate([[0], np.cumsum(n_cp)])
     # Spans degree … n_cp − 1 of each curve cover its domain; the non-empty ones are its pieces.
-    n_dom = n_cp - degrees
-    owner = np.repeat(np.arange(len(knots)), n_dom)
-    local_span = np.arange(owner.shape[0]) - np.repeat(np.cumsum(n_dom) - n_dom, n_dom) + degrees[owner]
-    span = knot_start[owner] + local_span                     # global index into K
-    nonempty = K[span] < K[span + 1]
-    span, owner, local_span = span[nonempty], owner[nonempty], local_span[nonempty]
-    n_pieces = np.bincount(owner, minlength=len(knots))
-    if np.any(n_pieces == 0):
+    (ok, cp_start, piece_start, lo, hi, span, owner, piece_lo, width, window, real, breaks,
+     break_start) = kernels.table_layout(K, n_knots, degrees, p)
+    if not ok:
         raise SplineError("every curve needs a non-empty domain")
-    piece_start = np.concatenate([[0], np.cumsum(n_pieces)])
-    piece_lo = K[span]
-    width = K[span + 1] - piece_lo
-    lo = K[knot_start[:-1] + degrees]
-    hi = K[knot_start[:-1] + n_cp]
 
     S = span.shape[0]
     factorials = np.array([math.factorial(k) for k in range(p + 1)], dtype=float)
@@ -251,32 +238,18 @@ def curve_table(knots: list[np.ndarray], degrees: list[int] | np.ndarray) -> Cur
         _, values = basis_functions(K, p, piece_lo, p, span=span)             # (p+1, S, p+1)
         power_basis = np.empty((S, p + 1, p + 1))
         np.divide(values.transpose(1, 0, 2), factorials[None, :, None], out=power_basis)
-        window = (cp_start[owner] + local_span - p)[:, None] + r[None, :]
-        real = np.ones((S, p + 1), dtype=bool)
     else:
         power_basis = np.zeros((S, p + 1, p + 1))
-        window = np.empty((S, p + 1), dtype=np.intp)
-        real = np.zeros((S, p + 1), dtype=bool)
         for d in np.unique(degrees):
             sel = np.flatnonzero(degrees[owner] == d)
             d = int(d)
             _, values = basis_functions(K, d, piece_lo[sel], d, span=span[sel])   # (d+1, s, d+1)
             power_basis[sel[:, None, None], r[None, : d + 1, None], r[None, None, : d + 1]] = (
                 values.transpose(1, 0, 2) / factorials[None, : d + 1, None])
-            first = cp_start[owner[sel]] + local_span[sel] - d
-            # padding repeats the last real row, with zero weight
-            window[sel] = first[:, None] + np.minimum(r, d)[None, :]
-            real[sel, : d + 1] = True
 
-    # every curve's breaks in order: its pieces' starts, then its end (S + C breaks)
     C = len(knots)
-    n_breaks = n_pieces + 1
     last = piece_start[1:] - 1
-    breaks = np.empty(S + C)
-    breaks[np.arange(S) + owner] = piece_lo
-    breaks[last + np.arange(1, C + 1)] = piece_lo[last] + width[last]
-    keys = np.repeat(np.arange(C), n_breaks) + 1j * breaks
-    break_start = np.concatenate([[0], np.cumsum(n_breaks)])
+    keys = np.repeat(np.arange(C), np.diff(break_start)) + 1j * breaks
     table = CurveTable(degree=degrees, p=p, cp_start=cp_start, piece_start=piece_start, lo=lo, hi=hi,
                        piece_lo=piece_lo, width=width, piece_curve=owner, window=window, real=real,
                        power_basis=power_basis, keys=keys, break_start=break_start)

@@ -495,3 +495,67 @@ def basis_derivatives(knots, degree, t, span, nder):
                 ders[k, i, r] *= factor
         factor *= p - k
     return ders
+
+
+@jit
+def table_layout(K, n_knots, degrees, p):
+    """The index bookkeeping of :func:`bsslam.spline.batch.curve_table` in one loop over the
+    curves: C curves with knot vectors stacked in K (n_knots (C,) each) and degrees (C,),
+    padded to degree p. Returns ``(ok, cp_start, piece_start, lo, hi, span, owner, piece_lo,
+    width, window, real, breaks, break_start)`` as the table's fields of those names (span:
+    each piece's global knot span in K; owner: the table's ``piece_curve``); ok is False
+    when a curve has no non-empty span (the other outputs are then meaningless)."""
+    C = n_knots.shape[0]
+    cp_start = np.zeros(C + 1, dtype=np.intp)
+    piece_start = np.zeros(C + 1, dtype=np.intp)
+    break_start = np.zeros(C + 1, dtype=np.intp)
+    lo = np.empty(C)
+    hi = np.empty(C)
+    total = 0
+    for c in range(C):
+        total += max(n_knots[c] - 2 * degrees[c] - 1, 0)   # spans degree … n_cp − 1: an upper bound
+    span = np.empty(total, dtype=np.intp)
+    owner = np.empty(total, dtype=np.intp)
+    local = np.empty(total, dtype=np.intp)
+    S = 0
+    k0 = 0
+    ok = True
+    for c in range(C):
+        d = degrees[c]
+        n_cp = n_knots[c] - d - 1
+        cp_start[c + 1] = cp_start[c] + n_cp
+        lo[c] = K[k0 + d]
+        hi[c] = K[k0 + n_cp]
+        first = S
+        for j in range(d, n_cp):                      # the non-empty spans are the pieces
+            if K[k0 + j] < K[k0 + j + 1]:
+                span[S] = k0 + j
+                owner[S] = c
+                local[S] = j
+                S += 1
+        if S == first:
+            ok = False
+        piece_start[c + 1] = S
+        break_start[c + 1] = break_start[c] + (S - first) + 1
+        k0 += n_knots[c]
+    span, owner, local = span[:S], owner[:S], local[:S]
+    piece_lo = np.empty(S)
+    width = np.empty(S)
+    window = np.empty((S, p + 1), dtype=np.intp)
+    real = np.zeros((S, p + 1), dtype=np.bool_)
+    breaks = np.empty(S + C)
+    for s in range(S):
+        c = owner[s]
+        d = degrees[c]
+        piece_lo[s] = K[span[s]]
+        width[s] = K[span[s] + 1] - piece_lo[s]
+        first_row = cp_start[c] + local[s] - d
+        for r in range(p + 1):                        # padding repeats the last real row
+            window[s, r] = first_row + min(r, d)
+            real[s, r] = r <= d
+        breaks[s + c] = piece_lo[s]                   # every curve's breaks in order, then its end
+    for c in range(C):
+        if piece_start[c + 1] > piece_start[c]:
+            last = piece_start[c + 1] - 1
+            breaks[last + c + 1] = piece_lo[last] + width[last]
+    return ok, cp_start, piece_start, lo, hi, span, owner, piece_lo, width, window, real, breaks, break_start
