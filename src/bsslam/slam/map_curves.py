@@ -61,43 +61,41 @@ class MapCurves:
     def with_replaced(self, feature: SplineFeature, table: CurveTable) -> MapCurves:
         """This table with ``feature`` (already in it, e.g. just extended) given new knots and
         state rows: ``table`` is its own one-curve table. The other curves' rows are kept
-        (:func:`~bsslam.spline.batch.take_curves`) instead of built again."""
+        (:meth:`_kept`) instead of built again."""
         c, C = self.index[feature.id], len(self.features)
         parts = [np.arange(c), np.arange(c + 1, C)]
         if table.p != self.table.p or any(k.size and self.table.degree[k].max() != self.table.p for k in parts):
             return MapCurves(self.features)   # a part without the padded degree: build anew
-
-        def part(curves):   # (table, state rows, fixed points) of other curves, or None
-            if not curves.size:
-                return None
-            cp, _, _ = kept_rows(self.table.cp_start, curves)
-            return take_curves(self.table, curves), self.state_rows[cp], self._fixed[cp]
-
-        seq = [p for p in (part(parts[0]), (table, *_rows_of([feature])), part(parts[1])) if p is not None]
+        seq = [self._kept(parts[0]) if parts[0].size else None, (table, *_rows_of([feature])),
+               self._kept(parts[1]) if parts[1].size else None]
+        seq = [p for p in seq if p is not None]
         joined = functools.reduce(concat_tables, [p[0] for p in seq])
         return MapCurves(self.features, joined, np.vstack([p[1] for p in seq]), np.vstack([p[2] for p in seq]))
 
     def without(self, removed_ids, mapping: np.ndarray | None) -> MapCurves | None:
-        """This table less the features ``removed_ids``, their rows taken out of the kept
-        ones' (:func:`~bsslam.spline.batch.take_curves`) instead of built again; ``mapping``
-        (old state index → new, from :meth:`JointState.remove`) renumbers the state rows.
-        None when no feature is left."""
+        """This table less the features ``removed_ids``, the kept ones' rows taken out
+        (:meth:`_kept`) instead of built again; ``mapping`` (old state index → new, from
+        :meth:`JointState.remove`) renumbers the state rows. None when no feature is left."""
         keep = np.flatnonzero(~np.isin(self.ids, np.asarray(list(removed_ids), dtype=np.intp)))
         if keep.size == 0:
             return None
         features = [self.features[c] for c in keep]
         if int(self.table.degree[keep].max()) != self.table.p:   # the padding changes: build anew
             return MapCurves(features)
-        cp, _, _ = kept_rows(self.table.cp_start, keep)
-        rows = self.state_rows[cp]
+        table, rows, fixed = self._kept(keep)
         if mapping is not None:
             rows = np.where(rows >= 0, mapping[np.maximum(rows, 0)], -1)
-        return MapCurves(features, take_curves(self.table, keep), rows, self._fixed[cp])
+        return MapCurves(features, table, rows, fixed)
+
+    def _kept(self, curves: np.ndarray) -> tuple[CurveTable, np.ndarray, np.ndarray]:
+        """The table (:func:`~bsslam.spline.batch.take_curves`), state rows and fixed control
+        points of the curves ``curves`` (sorted indices, at least one of the padded degree)."""
+        cp, _, _ = kept_rows(self.table.cp_start, curves)
+        return take_curves(self.table, curves), self.state_rows[cp], self._fixed[cp]
 
     def state_indices(self, curves: np.ndarray) -> np.ndarray:
         """(k,) sorted state indices of the control points of ``curves`` (none for fixed ones)."""
-        start = self.table.cp_start
-        rows = np.concatenate([self.state_rows[start[c] : start[c + 1]].ravel() for c in curves])
+        rows = self.state_rows[kept_rows(self.table.cp_start, curves)[0]].ravel()
         return np.unique(rows[rows >= 0])
 
     def control_points(self, x: np.ndarray) -> np.ndarray:
