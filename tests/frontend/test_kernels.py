@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from bsslam.frontend.kernels import grid_index, nearest_within, point_to_line, splat_max
+from bsslam.frontend.kernels import _nearest, grid_index, point_to_line, splat_max
 from bsslam.frontend.scan_matcher import LikelihoodField
 
 
@@ -48,7 +48,7 @@ def test_grid_index_buckets_every_point_once_in_its_cell(cell, max_cells):
 
 
 @pytest.mark.parametrize("cell, gate", [(0.15, 0.3), (0.15, 0.15), (0.3, 0.15), (0.05, 0.2)])
-def test_nearest_within_is_the_brute_force_and_the_kdtree_answer(cell, gate):
+def test_grid_nearest_is_the_brute_force_and_the_kdtree_answer(cell, gate):
     """Exact: the same points, the same squared distances compared with gate² (strictly,
     as cKDTree's distance_upper_bound), including queries exactly at the gate and far off."""
     rng = np.random.default_rng(4)
@@ -56,7 +56,8 @@ def test_nearest_within_is_the_brute_force_and_the_kdtree_answer(cell, gate):
     queries = np.concatenate((rng.uniform(-3.5, 3.5, size=(2000, 2)), pts[:50] + [gate, 0.0],
                               pts[50:60], [[100.0, 100.0], [-50.0, 0.0]]))
     order, grid = _grid(pts, cell)
-    got = nearest_within(pts[order], *grid, queries, gate)
+    xy = pts[order]
+    got = np.array([_nearest(xy, *grid, qx, qy, gate) for qx, qy in queries])
     got = np.where(got >= 0, order[np.maximum(got, 0)], -1)
     d2 = (queries[:, None, 0] - pts[None, :, 0]) ** 2 + (queries[:, None, 1] - pts[None, :, 1]) ** 2
     near = d2.min(axis=1) < gate * gate

@@ -177,15 +177,6 @@ def _nearest(xy, start, lo_x, lo_y, cell, nx, ny, qx, qy, gate):
 
 
 @jit
-def nearest_within(xy, start, lo_x, lo_y, cell, nx, ny, queries, gate):
-    """:func:`_nearest` of each of ``queries`` (n, 2): (n,) rows of ``xy``, −1 for none."""
-    out = np.empty(queries.shape[0], dtype=np.intp)
-    for i in range(queries.shape[0]):
-        out[i] = _nearest(xy, start, lo_x, lo_y, cell, nx, ny, queries[i, 0], queries[i, 1], gate)
-    return out
-
-
-@jit
 def point_to_line(rotated, x0, x1, gate, qn, start, lo_x, lo_y, cell, nx, ny, huber):
     """Point-to-line residuals and Jacobian of :meth:`ReferenceMap._linearise`.
 
