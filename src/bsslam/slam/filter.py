@@ -20,10 +20,9 @@ from bsslam.slam.association import Match, associate, relative_sigma
 from bsslam.slam.ekf import CovarianceColumns, StackedGain, gate_threshold, innovation_variances
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
 from bsslam.slam.features import MapSpline, SplineFeature
-from bsslam.slam.kernels import stack_jacobian
 from bsslam.slam.map_curves import MapCurves
 from bsslam.slam.motion import motion_noise, predict
-from bsslam.slam.observation import laser_pose, predict_beams_batch
+from bsslam.slam.observation import laser_pose, linearize_beams
 from bsslam.slam.state import POSE, JointState
 from bsslam.spline import FitResult, extend_curve, fit_curve
 from bsslam.spline.batch import CurveTable, closest_points_batch, curve_table
@@ -352,29 +351,20 @@ class SplineSLAM:
     def _linearize(self, beams: _Beams, x: np.ndarray, offset: np.ndarray,
                    report: StepReport | None) -> _Linearization | None:
         """Predicted ranges and the stacked Jacobian of every beam at the estimate ``x``, in
-        one vectorised ray intersection over all the beams' map splines.
+        one compiled call over all the beams' map splines (:func:`linearize_beams`).
 
         Beams that miss their spline or hit it at grazing incidence are dropped (and
         counted when ``report`` is given). Returns None when no beam is left.
         """
-        max_tan = math.tan(self.config.observation.max_incidence_rad)
-        mc = self._map   # validated by _associate this step
-        maps = mc.batch(x, beams.used_curves)
-        pred = predict_beams_batch(maps, beams.curve, x[:3], offset, beams.bearings, t0=beams.t0)
-        ok = pred.hit & np.isfinite(pred.z)
-        grazing = ok & (np.abs(pred.r) > max_tan)
+        cols, H_c, residual, rows, hit_t, missed, grazing = linearize_beams(
+            self._map, x, offset, beams.curve, beams.bearings, beams.ranges, beams.t0,   # map: validated by _associate
+            math.tan(self.config.observation.max_incidence_rad))
         if report is not None:
-            report.drop("missed", int((~ok).sum()))
-            report.drop("grazing", int(grazing.sum()))
-        ok &= ~grazing
-        rows = np.flatnonzero(ok)
+            report.drop("missed", missed)
+            report.drop("grazing", grazing)
         if rows.size == 0:
             return None
-        # the pose and the state columns of the rows' control points; padding of a
-        # lower-degree spline and fixed splines (localisation mode) have none
-        cols, H_c = stack_jacobian(rows, pred.window, pred.real, mc.state_rows, pred.H_cp_x, pred.H_cp_y,
-                                   pred.H_pose, self.state.size)
-        return _Linearization(cols, H_c, beams.ranges[rows] - pred.z[rows], rows, pred.t[rows])
+        return _Linearization(cols, H_c, residual, rows, hit_t)
 
     @staticmethod
     def _select(beams: _Beams, lin: _Linearization, keep: np.ndarray) -> tuple[_Beams, _Linearization]:

@@ -47,6 +47,11 @@ class MapCurves:
         self._static_batch: CurveBatch | None = None
         self._static_boxes: np.ndarray | None = None
 
+    @property
+    def fixed_control_points(self) -> np.ndarray:
+        """(N, 2) the fixed control points (localisation mode) (m); zeros where in the state."""
+        return self._fixed
+
     def with_added(self, features: list[SplineFeature]) -> MapCurves:
         """This table with new features appended after the current ones: only theirs is
         built (a map gains a spline every other scan, and rebuilding all of it cost 5 ms)."""
