@@ -135,3 +135,11 @@ def test_global_search_equals_the_numpy_search():
     assert 10 < np.isfinite(hits[1]).sum() < 80
     for got, want in zip((hits[0], hits[1], hits[2] / hits[3]), (expected.t, expected.range, expected.r)):
         assert got.tobytes() == want.tobytes()
+
+
+def test_used_curves_is_unique():
+    rng = np.random.default_rng(2)
+    for curve in (rng.integers(0, 40, 70), np.array([5, 5, 5]), np.array([3]), np.empty(0, dtype=np.intp)):
+        got = range_kernels.used_curves(curve.astype(np.intp))
+        expected = np.unique(curve.astype(np.intp))
+        assert got.dtype == expected.dtype and got.tolist() == expected.tolist()

@@ -16,6 +16,7 @@ from bsslam.config import SLAMConfig
 from bsslam.errors import FilterError, FitError, InputError
 from bsslam.scan import LaserScan, ObservedSpline, ScanFeatures, extract_splines
 from bsslam.scan.refine import refine_for_map
+from bsslam.slam import range_kernels
 from bsslam.slam.association import Match, associate, relative_sigma
 from bsslam.slam.ekf import CovarianceColumns, StackedGain, gate_threshold, innovation_variances
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
@@ -105,8 +106,8 @@ class _Beams:
 
     @functools.cached_property
     def used_curves(self) -> np.ndarray:
-        """The distinct map splines of the beams."""
-        return np.unique(self.curve)
+        """The distinct map splines of the beams (increasing)."""
+        return range_kernels.used_curves(self.curve)
 
 
 class SplineSLAM:

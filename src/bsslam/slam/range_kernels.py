@@ -36,6 +36,18 @@ from bsslam.spline.kernels import first_per_group, hit_basis, ray_newton
 
 
 @jit
+def used_curves(curve):
+    """``np.unique`` of the beams' curve indices (m,) (non-negative): the distinct map curves,
+    increasing (a mark per curve: a sort and its bookkeeping were ten numpy calls)."""
+    if curve.shape[0] == 0:
+        return np.empty(0, dtype=np.intp)
+    mark = np.zeros(curve.max() + 1, dtype=np.bool_)
+    for c in curve:
+        mark[c] = True
+    return np.flatnonzero(mark)
+
+
+@jit
 def used_coefficients(x, state_rows, fixed, power_basis, window, piece_start, curve):
     """(p+1, 2, S) Taylor coefficients of the pieces of the curves in ``curve`` (m,), the
     control points read from the state mean ``x`` (or fixed) as
