@@ -1,6 +1,7 @@
-"""Compiled steps of the filter: data association (:func:`bsslam.slam.association.associate`),
-the stacked Jacobian of a scan's beams (:func:`stack_jacobian`) and the covariance's block
-reads (:func:`take_block`).
+"""Compiled steps of the filter: data association (:func:`bsslam.slam.association.associate`,
+:func:`match_pairs`) and its inputs (:func:`association_frame`,
+:func:`association_thresholds`), the stacked Jacobian of a scan's beams
+(:func:`stack_jacobian`) and the covariance's block reads (:func:`take_block`).
 
 A scan's association is tens of (observed, map) spline pairs, each asking a few numbers
 (two boxes, a few dozen control-point distances, four curve points). Written as
