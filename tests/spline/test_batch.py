@@ -12,7 +12,6 @@ from spline_cases import batch_of, corner_between, curves, params_in, wall_curve
 from bsslam.errors import SplineError
 from bsslam.spline import BSplineCurve, basis_functions, clamped_knots, closest_point, intersect_rays
 from bsslam.spline.batch import closest_points_batch, intersect_rays_batch
-from bsslam.spline.knots import clamped_knots_with_spans
 
 SETTINGS = settings(max_examples=40, deadline=None)
 # Beams within this of the tangent are grazing (the filter drops them): there the global
@@ -139,18 +138,3 @@ def test_degenerate_newton_steps_match_each_curve():
     np.testing.assert_allclose(distance, np.linalg.norm(queries - [1.0, -2.0], axis=1), rtol=1e-15)
     t_one, _, d_one = closest_point(dot, queries, t0=np.array([0.5, 2.0]))
     np.testing.assert_array_equal(t, t_one)
-
-
-def test_extreme_control_points_brute_force():
-    rng = np.random.default_rng(11)
-    cs = [BSplineCurve(rng.uniform(-4, 4, (k, 2)), clamped_knots_with_spans(1.0, k - d, d), d)
-          for k, d in ((3, 2), (6, 3), (5, 4), (8, 1))]
-    batch = batch_of(cs)
-    point = np.array([0.5, -0.3])
-    curves = np.array([3, 0, 2])
-    for farthest in (False, True):
-        rows = batch.table.extreme_control_points(batch.control_points, curves, point, farthest=farthest)
-        for c, r in zip(curves, rows):
-            d = np.linalg.norm(cs[c].control_points - point, axis=1)
-            best = np.argmax(d) if farthest else np.argmin(d)
-            assert r == batch.table.cp_start[c] + best

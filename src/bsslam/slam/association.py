@@ -8,10 +8,10 @@ spline's end is a candidate for extending it.
 All pairs of a scan are decided together: the observed and the map splines come as
 :class:`~bsslam.spline.batch.CurveBatch` es, and each step of Fig. 6 (gates, closest
 points of the observed ends, re-query at a map end, the final distance test) is one call
-over every (observed, map) pair, not a Python loop over pairs. The closest points are the
-batched searches of :mod:`bsslam.spline.batch`; the steps between them are compiled loops
-over the pairs (:mod:`bsslam.slam.kernels`), bit-identical to the numpy form they replaced
-and a fraction of its numpy call overhead.
+over every (observed, map) pair, not a Python loop over pairs, and all the steps are one
+compiled call (:func:`bsslam.slam.kernels.match_pairs`: the closest points are the
+batched searches of :mod:`bsslam.spline.batch`, their compiled steps called from it),
+bit-identical to the numpy form they replaced and a fraction of its numpy call overhead.
 """
 
 from __future__ import annotations
@@ -21,7 +21,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from bsslam.slam import kernels
-from bsslam.spline.batch import CurveBatch, closest_points_batch
+from bsslam.spline.batch import CurveBatch, CurveTable
+from bsslam.spline.closest import _MAX_NEWTON as _CLOSEST_MAX_NEWTON
+from bsslam.spline.closest import _STEP_TOLERANCE as _CLOSEST_STEP_TOLERANCE
+from bsslam.spline.closest import MAX_SAMPLES_PER_SPAN
+
+#: The closest-point searches' sampling (closest_points_batch's defaults, which association
+#: has always used): largest arc length between samples (m), fewest samples per piece.
+_SAMPLE_STEP_M = 0.1
+_SAMPLES_PER_SPAN = 4
 
 
 @dataclass(frozen=True)
@@ -74,14 +82,32 @@ def relative_sigma(pose: np.ndarray, pose_covariance: np.ndarray, points: np.nda
             (zeros for a fixed point).
         map_variance: (F,) trace of each control point's 2×2 block P_cc (m²; 0 if fixed).
     """
-    lever = points - pose[:2]
-    k = points.shape[0]
-    J = np.zeros((k, 2, 3))
-    J[:, 0, 0] = J[:, 1, 1] = 1.0
-    J[:, 0, 2], J[:, 1, 2] = -lever[:, 1], lever[:, 0]
-    own = np.einsum("kab,bc,kac->k", J, pose_covariance, J)
-    coupled = np.einsum("kab,bfa->kf", J, cross)                          # tr(J P_pc)
-    return np.sqrt(np.maximum(own[:, None] - 2.0 * coupled + map_variance[None, :], 0.0))
+    J = kernels.point_jacobians(np.asarray(pose, dtype=float), np.asarray(points, dtype=float))
+    return kernels.offset_sigma(*_pose_terms(J, pose_covariance, cross), np.asarray(map_variance, dtype=float))
+
+
+def _pose_terms(J: np.ndarray, pose_covariance: np.ndarray, cross: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """tr(J P_pp Jᵀ) (k,) and tr(J P_pc) (k, F) for point Jacobians J (k, 2, 3): einsum's
+    sums, in numpy (a compiled loop would add the terms in its own order)."""
+    return (np.einsum("kab,bc,kac->k", J, pose_covariance, J),
+            np.einsum("kab,bfa->kf", J, cross))
+
+
+def association_thresholds(J: np.ndarray, pose_covariance: np.ndarray, cross: np.ndarray, map_diagonal: np.ndarray,
+                           near: np.ndarray, sigmas: float, match_m: float, max_match_m: float,
+                           gate_m: float) -> np.ndarray:
+    """(2, k, F) control-point gate and match distance (m) of each (observed, candidate)
+    pair, grown by ``sigmas`` σ of :func:`relative_sigma` (the match distance capped at
+    ``max_match_m``).
+
+    Args:
+        J: (k, 2, 3) pose Jacobians of the observed points (:func:`kernels.point_jacobians`).
+        pose_covariance, cross: as :func:`relative_sigma` (``cross`` zero where fixed).
+        map_diagonal: (2F,) variances of each candidate's control point's x and y (m²);
+            near: (F, 2) their state rows, −1 where fixed (then no variance).
+    """
+    return kernels.association_thresholds(*_pose_terms(J, pose_covariance, cross), map_diagonal, near,
+                                          float(sigmas), float(match_m), float(max_match_m), float(gate_m))
 
 
 def _per_pair(value, k: int, f: int) -> np.ndarray:
@@ -110,30 +136,32 @@ def associate(observed: CurveBatch, mapped: CurveBatch, feature_ids: np.ndarray,
     Returns:
         for each observed spline, its matches sorted by ``u_ini``.
     """
-    to, tm = observed.table, mapped.table
-    k = to.n_curves
-    result: list[list[Match]] = [[] for _ in range(k)]
+    k = observed.table.n_curves
     candidates = np.asarray(candidates, dtype=np.intp)
     if k == 0 or candidates.size == 0:
-        return result
-    obs = (observed.coeffs_t, to.piece_lo, to.piece_start, to.lo, to.hi)
-    maps = (mapped.coeffs_t, tm.piece_lo, tm.piece_start, tm.lo, tm.hi)
-    # bounding boxes, then control points within the gate; the observed ends of those pairs
-    pairs, end_points, curves = kernels.gated_pairs(observed.control_points, to.cp_start, *obs,
-                                                    mapped.control_points, tm.cp_start, candidates,
-                                                    _per_pair(gate_m, k, candidates.size))
-    if curves.size == 0:
-        return result
-    # Closest map points to both ends of each observed spline: (2P,) parameters, pair by pair.
-    t_ends = closest_points_batch(mapped, curves, end_points)[0]
-    # where that is the map spline's end, the correspondence starts there instead, at the
-    # observed point closest to it
-    map_end, requeried = kernels.map_end_queries(t_ends, pairs, curves, *maps)
-    u_requeried = closest_points_batch(observed, requeried, map_end)[0] if requeried.size else np.empty(0)
-    # opposite orientation (far side of a wall) or no overlap, then the distance test
-    values, labels, at_end = kernels.accepted_pairs(t_ends, u_requeried, pairs, curves,
-                                                    np.asarray(feature_ids, dtype=np.intp),
-                                                    _per_pair(match_distance_m, k, candidates.size), *obs, *maps)
+        return [[] for _ in range(k)]
+    return associate_curves(observed.table, observed.control_points, observed.coeffs_t, mapped.table,
+                            mapped.control_points, mapped.coeffs_t, np.asarray(feature_ids, dtype=np.intp), candidates,
+                            _per_pair(gate_m, k, candidates.size), _per_pair(match_distance_m, k, candidates.size))
+
+
+def associate_curves(observed: CurveTable, observed_cp: np.ndarray, observed_coeffs_t: np.ndarray, mapped: CurveTable,
+                     mapped_cp: np.ndarray, mapped_coeffs_t: np.ndarray, feature_ids: np.ndarray,
+                     candidates: np.ndarray, gates: np.ndarray, deltas: np.ndarray) -> list[list[Match]]:
+    """:func:`associate` on the curves' tables, control points (N, 2) and coefficients
+    (p+1, 2, S) (as :attr:`CurveBatch.coeffs_t`), without building the batches: the filter
+    has the arrays. ``feature_ids`` (C,) and ``candidates`` (F,) are intp arrays, ``gates``
+    and ``deltas`` (k, F) C-contiguous (m); F > 0.
+
+    Every step of Fig. 6 (gates, closest points of the observed ends, re-query at a map
+    end, the final distance test) is one compiled call (:func:`kernels.match_pairs`)."""
+    to, tm = observed, mapped
+    values, labels, at_end = kernels.match_pairs(
+        observed_cp, to.cp_start, observed_coeffs_t, to.window, to.piece_lo, to.width, to.piece_start, to.lo, to.hi,
+        mapped_cp, tm.cp_start, mapped_coeffs_t, tm.window, tm.piece_lo, tm.width, tm.piece_start, tm.lo, tm.hi,
+        candidates, feature_ids, gates, deltas, _SAMPLE_STEP_M, _SAMPLES_PER_SPAN, MAX_SAMPLES_PER_SPAN,
+        _CLOSEST_MAX_NEWTON, _CLOSEST_STEP_TOLERANCE)
+    result: list[list[Match]] = [[] for _ in range(to.n_curves)]
     # one Match per accepted pair (a handful per scan), already in each curve's u_ini order
     for (i, fid), (u_ini, u_fin, t_ini, t_fin), (lo_end, hi_end) in zip(labels.tolist(), values.tolist(),
                                                                         at_end.tolist()):

@@ -17,10 +17,11 @@ from bsslam.errors import FilterError, FitError, InputError
 from bsslam.scan import LaserScan, ObservedSpline, ScanFeatures, extract_splines
 from bsslam.scan.refine import refine_for_map
 from bsslam.slam import range_kernels
-from bsslam.slam.association import Match, associate, relative_sigma
+from bsslam.slam.association import Match, associate_curves, association_thresholds
 from bsslam.slam.ekf import CovarianceColumns, StackedGain, gate_threshold, innovation_variances
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
 from bsslam.slam.features import MapSpline, SplineFeature
+from bsslam.slam.kernels import association_frame
 from bsslam.slam.map_curves import MapCurves
 from bsslam.slam.motion import motion_noise, predict
 from bsslam.slam.observation import laser_pose, linearize_beams
@@ -274,45 +275,41 @@ class SplineSLAM:
         mc = self._map_curves()
         if mc is None or not observed:
             return [[] for _ in observed]
-        lp = laser_pose(self.state.pose, offset)
-        cp = mc.control_points(self.state.x)
-        b = mc.bboxes(self.state.x)
-        # distance from the robot to each box; only nearby features are candidates
-        dx = np.maximum(np.maximum(b[:, 0] - lp[0], 0.0), lp[0] - b[:, 2])
-        dy = np.maximum(np.maximum(b[:, 1] - lp[1], 0.0), lp[1] - b[:, 3])
-        candidates = np.flatnonzero(dx * dx + dy * dy <= cfg.map_radius_m ** 2)
-        if candidates.size == 0:
-            return [[] for _ in observed]
+        state = self.state
+        pose = state.pose
+        lp = laser_pose(pose, offset)
         if self._features is not None and observed is self._features.splines:
             table, local = self._features.curve_table, self._features.control_points
         else:   # a subset (re-association)
             table = curve_table([o.curve.knots for o in observed], [o.curve.degree for o in observed])
             local = np.vstack([o.curve.control_points for o in observed])      # robot (laser) frame
         c, s = np.cos(lp[2]), np.sin(lp[2])
-        world = table.with_control_points(local @ np.array([[c, s], [-s, c]]) + lp[:2])
-        # Grow both thresholds by the uncertainty of each observed spline's far end
-        # relative to each candidate map spline: what the filter does not know about where
-        # that wall is *as seen from the robot*. The robot's absolute uncertainty is the
-        # wrong measure after a long drift: walls mapped a few metres back carry the same
-        # error, and gates grown by it all reach their 1 m cap in the ACES corridors.
-        far = world.control_points[table.extreme_control_points(
-            world.control_points, np.arange(table.n_curves), lp[:2], farthest=True)]  # (k, 2)
-        near = mc.state_rows[mc.table.extreme_control_points(cp, candidates, lp[:2])]  # (F, 2)
+        world = local @ np.array([[c, s], [-s, c]]) + lp[:2]
+        # Only map features whose control polygon's box is near the robot are candidates.
+        # Both thresholds grow by the uncertainty of each observed spline's far end
+        # relative to each candidate's nearest control point: what the filter does not
+        # know about where that wall is *as seen from the robot*. The robot's absolute
+        # uncertainty is the wrong measure after a long drift: walls mapped a few metres
+        # back carry the same error, and gates grown by it all reach their 1 m cap in the
+        # ACES corridors.
+        mt, cp = mc.table, mc.control_points(state.x)
+        candidates, near, J, map_coeffs_t, world_coeffs_t = association_frame(
+            cp, mt.cp_start, mt.power_basis, mt.window, mt.piece_start, mc.state_rows, world, table.cp_start,
+            table.power_basis, table.window, table.piece_start, lp, cfg.map_radius_m ** 2, pose)
+        if candidates.size == 0:
+            return [[] for _ in observed]
         fixed = near[:, 0] < 0
         if fixed.all():   # localisation: the map is known exactly
-            cross, map_var = np.zeros((3, near.shape[0], 2)), np.zeros(near.shape[0])
+            cross, diagonal = np.zeros((3, near.shape[0], 2)), np.zeros(2 * near.shape[0])
         else:
             rows = np.maximum(near, 0).ravel()
-            cross = self.state.block(POSE, rows).reshape(3, -1, 2)
-            map_var = self.state.diagonal(rows).reshape(-1, 2).sum(axis=1)
+            cross = state.block(POSE, rows).reshape(3, -1, 2)
+            diagonal = state.diagonal(rows)
             cross[:, fixed] = 0.0
-            map_var[fixed] = 0.0
-        sigma = relative_sigma(self.state.pose, self.state.pose_covariance, far, cross, map_var)
-        grow = cfg.uncertainty_sigmas * sigma                                   # (k, F)
-        delta = np.minimum(cfg.match_distance_m + grow, cfg.max_match_distance_m)
-        gate = cfg.control_point_gate_factor * self.config.spline.knot_spacing_m + grow
-        maps = mc.batch(self.state.x, candidates)
-        return associate(world, maps, mc.ids, candidates, gate, delta)
+        gates, deltas = association_thresholds(
+            J, state.pose_covariance, cross, diagonal, near, cfg.uncertainty_sigmas, cfg.match_distance_m,
+            cfg.max_match_distance_m, cfg.control_point_gate_factor * self.config.spline.knot_spacing_m)
+        return associate_curves(table, world, world_coeffs_t, mt, cp, map_coeffs_t, mc.ids, candidates, gates, deltas)
 
     def _reassociate(self, observed, matches, offset, report: StepReport) -> None:
         """Give splines that matched nothing a second chance at the corrected pose before

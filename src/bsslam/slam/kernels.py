@@ -1,6 +1,7 @@
-"""Compiled steps of the filter: data association (:func:`bsslam.slam.association.associate`),
-the stacked Jacobian of a scan's beams (:func:`stack_jacobian`) and the covariance's block
-reads (:func:`take_block`).
+"""Compiled steps of the filter: data association (:func:`bsslam.slam.association.associate`,
+:func:`match_pairs`) and its inputs (:func:`association_frame`,
+:func:`association_thresholds`), the stacked Jacobian of a scan's beams
+(:func:`stack_jacobian`) and the covariance's block reads (:func:`take_block`).
 
 A scan's association is tens of (observed, map) spline pairs, each asking a few numbers
 (two boxes, a few dozen control-point distances, four curve points). Written as
@@ -25,7 +26,7 @@ import math
 import numpy as np
 
 from bsslam.compiled import jit
-from bsslam.spline.kernels import bbox, point_at
+from bsslam.spline.kernels import bbox, closest_newton, first_per_group, piece_coefficients, point_at, sampled_minima
 
 
 @jit
@@ -244,6 +245,206 @@ def accepted_pairs(t_ends, u_requeried, pairs, curves, feature_ids, deltas, obs_
         labels[q, 0], labels[q, 1] = pairs[0, p], feature_ids[curves[2 * p]]
         flags[q, 0], flags[q, 1] = at_end[p, 0], at_end[p, 1]
     return values, labels, flags
+
+
+@jit
+def closest_parameters(coeffs_t, control_points, window, piece_lo, width, piece_start, lo, hi, curve, queries,
+                       sample_step, samples_per_span, max_samples, max_newton, step_tolerance):
+    """(q,) parameter (m) of the point of curve ``curve[j]`` closest to ``queries[j]``
+    ((q, 2), m): ``closest_points_batch(batch, curve, queries)[0]`` with its sampling and
+    Newton settings passed in, the same compiled steps in the same order (sampled starts,
+    Newton from each, each query's best start)."""
+    qx = queries[:, 0].copy()
+    qy = queries[:, 1].copy()
+    t_start, owner = sampled_minima(coeffs_t, control_points, window, piece_lo, width, piece_start, lo, hi, curve,
+                                    qx, qy, sample_step, samples_per_span, max_samples)
+    t, d2 = closest_newton(coeffs_t, piece_lo, piece_start, lo, hi, curve[owner], qx[owner], qy[owner], t_start,
+                           max_newton, step_tolerance)
+    return t[first_per_group(d2, owner, queries.shape[0])]
+
+
+@jit
+def match_pairs(obs_cp, obs_cp_start, obs_coeffs_t, obs_window, obs_piece_lo, obs_width, obs_piece_start, obs_lo,
+                obs_hi, map_cp, map_cp_start, map_coeffs_t, map_window, map_piece_lo, map_width, map_piece_start,
+                map_lo, map_hi, candidates, feature_ids, gates, deltas, sample_step, samples_per_span, max_samples,
+                max_newton, step_tolerance):
+    """Fig. 6 for every (observed, candidate) pair in one call: :func:`gated_pairs`, the
+    closest map points to the observed ends (:func:`closest_parameters`),
+    :func:`map_end_queries` and the observed points closest to those map ends, then
+    :func:`accepted_pairs`, whose ``values``, ``labels`` and ``at_end`` it returns. Each
+    step was one Python call of ``associate`` (with its arrays boxed and unboxed), the
+    closest points several.
+
+    Args:
+        obs_*, map_*: the observed and map curves as :class:`~bsslam.spline.batch.CurveTable`
+            and :class:`~bsslam.spline.batch.CurveBatch` hold them (stacked control
+            points (N, 2), their rows, coefficients (p+1, 2, S), windows, pieces, domains).
+        candidates: (F,) map curves to try; feature_ids: (C,) id of each map curve.
+        gates, deltas: (k, F) control-point gate and match distance of each pair (m).
+        sample_step … step_tolerance: the closest-point searches' settings
+            (:func:`closest_parameters`).
+    """
+    pairs, ends, curves = gated_pairs(obs_cp, obs_cp_start, obs_coeffs_t, obs_piece_lo, obs_piece_start, obs_lo,
+                                      obs_hi, map_cp, map_cp_start, candidates, gates)
+    t_ends = closest_parameters(map_coeffs_t, map_cp, map_window, map_piece_lo, map_width, map_piece_start, map_lo,
+                                map_hi, curves, ends, sample_step, samples_per_span, max_samples, max_newton,
+                                step_tolerance)
+    map_end, requeried = map_end_queries(t_ends, pairs, curves, map_coeffs_t, map_piece_lo, map_piece_start,
+                                         map_lo, map_hi)
+    u_requeried = np.empty(0)
+    if requeried.shape[0]:
+        u_requeried = closest_parameters(obs_coeffs_t, obs_cp, obs_window, obs_piece_lo, obs_width,
+                                         obs_piece_start, obs_lo, obs_hi, requeried, map_end, sample_step,
+                                         samples_per_span, max_samples, max_newton, step_tolerance)
+    return accepted_pairs(t_ends, u_requeried, pairs, curves, feature_ids, deltas, obs_coeffs_t, obs_piece_lo,
+                          obs_piece_start, obs_lo, obs_hi, map_coeffs_t, map_piece_lo, map_piece_start, map_lo,
+                          map_hi)
+
+
+# -- the filter's inputs to association --------------------------------------------------------
+
+@jit
+def _nan_max(a, b):
+    """np.maximum of two numbers: NaN if either is, else the larger (the first if equal)."""
+    if math.isnan(a) or a >= b:
+        return a
+    return b
+
+
+@jit
+def _nan_min(a, b):
+    """np.minimum of two numbers: NaN if either is, else the smaller (the first if equal)."""
+    if math.isnan(a) or a <= b:
+        return a
+    return b
+
+
+@jit
+def extreme_row(control_points, first, end, px, py, farthest):
+    """Row of the control point nearest to (or farthest from) (px, py) (m) among rows
+    first … end − 1: the smallest key d² (or −d²), d² = dx·dx + dy·dy, ties to the earlier
+    row and NaN keys last, as a stable lexsort of the keys picks it."""
+    best, best_key = -1, np.nan
+    for r in range(first, end):
+        dx = control_points[r, 0] - px
+        dy = control_points[r, 1] - py
+        d2 = dx * dx + dy * dy
+        key = -d2 if farthest else d2
+        if best < 0 or key < best_key or (math.isnan(best_key) and not math.isnan(key)):
+            best, best_key = r, key
+    return best
+
+
+@jit
+def _set_point_jacobian(J, i, pose, px, py):
+    """J[i] (2, 3) = ∂p/∂(x, y, φ) of a point (px, py) (m) that moves rigidly with the pose."""
+    J[i, 0, 0] = 1.0
+    J[i, 1, 1] = 1.0
+    J[i, 0, 2] = -(py - pose[1])
+    J[i, 1, 2] = px - pose[0]
+
+
+@jit
+def point_jacobians(pose, points):
+    """(k, 2, 3) ∂p/∂(x, y, φ) of k points (k, 2) (m) that move rigidly with the pose (3,):
+    the identity, and the lever arm p − (x, y) turned by 90° in the last column."""
+    J = np.zeros((points.shape[0], 2, 3))
+    for i in range(points.shape[0]):
+        _set_point_jacobian(J, i, pose, points[i, 0], points[i, 1])
+    return J
+
+
+@jit
+def association_frame(map_cp, map_cp_start, map_power_basis, map_window, map_piece_start, state_rows, obs_cp,
+                      obs_cp_start, obs_power_basis, obs_window, obs_piece_start, laser_pose, radius2, pose):
+    """What association needs of a scan besides covariances, in one call.
+
+    Args:
+        map_cp: (N, 2) the map's control points (m); map_cp_start, map_power_basis,
+            map_window, map_piece_start: its table; state_rows: (N, 2) their state rows
+            (−1: fixed).
+        obs_cp: (n, 2) the observed splines' control points in the world frame (m), with
+            their table's obs_cp_start, obs_power_basis, obs_window, obs_piece_start.
+        laser_pose: (3,) (m, m, rad); radius2: squared map radius (m²); pose: (3,) robot pose.
+
+    Returns:
+        ``candidates`` (F,) the map curves whose control-polygon box is within the map
+        radius of the laser; ``near`` (F, 2) the state rows of each one's control point
+        nearest to the laser; ``J`` (k, 2, 3) the pose Jacobian
+        (:func:`point_jacobians`) of each observed spline's control point farthest from
+        the laser; the coefficients (p+1, 2, S) of the candidates' pieces (NaN elsewhere)
+        and of every observed piece (:func:`~bsslam.spline.kernels.piece_coefficients`).
+    """
+    lx, ly = laser_pose[0], laser_pose[1]
+    n_map = map_cp_start.shape[0] - 1
+    found = np.empty(n_map, dtype=np.intp)
+    f = 0
+    for c in range(n_map):
+        x0, y0, x1, y1 = bbox(map_cp, map_cp_start[c], map_cp_start[c + 1])
+        # distance from the laser to the box, as the numpy form's two np.maximum
+        dx = _nan_max(_nan_max(x0 - lx, 0.0), lx - x1)
+        dy = _nan_max(_nan_max(y0 - ly, 0.0), ly - y1)
+        if dx * dx + dy * dy <= radius2:
+            found[f] = c
+            f += 1
+    candidates = found[:f].copy()
+    near = np.empty((f, 2), dtype=np.intp)
+    for j in range(f):
+        c = candidates[j]
+        r = extreme_row(map_cp, map_cp_start[c], map_cp_start[c + 1], lx, ly, False)
+        near[j, 0], near[j, 1] = state_rows[r, 0], state_rows[r, 1]
+    k = obs_cp_start.shape[0] - 1
+    J = np.zeros((k, 2, 3))
+    for i in range(k):
+        r = extreme_row(obs_cp, obs_cp_start[i], obs_cp_start[i + 1], lx, ly, True)
+        _set_point_jacobian(J, i, pose, obs_cp[r, 0], obs_cp[r, 1])
+    map_coeffs_t = piece_coefficients(map_power_basis, map_window, map_cp, candidates, map_piece_start)
+    obs_coeffs_t = piece_coefficients(obs_power_basis, obs_window, obs_cp, np.arange(k), obs_piece_start)
+    return candidates, near, J, map_coeffs_t, obs_coeffs_t
+
+
+@jit
+def _sigma(own, coupled, map_variance):
+    """√max(own − 2·coupled + map_variance, 0), NaN kept, as relative_sigma's numpy form."""
+    return math.sqrt(_nan_max(own - 2.0 * coupled + map_variance, 0.0))
+
+
+@jit
+def offset_sigma(own, coupled, map_variance):
+    """(k, F) σ (m) of each (point, control point) offset from J P_pp Jᵀ's trace ``own``
+    (k,), tr(J P_pc) ``coupled`` (k, F) and ``map_variance`` (F,) (m²)."""
+    k, f = coupled.shape
+    out = np.empty((k, f))
+    for i in range(k):
+        for j in range(f):
+            out[i, j] = _sigma(own[i], coupled[i, j], map_variance[j])
+    return out
+
+
+@jit
+def association_thresholds(own, coupled, map_diagonal, near, sigmas, match_m, max_match_m, gate_m):
+    """(2, k, F) the control-point gate and the match distance (m) of each (observed,
+    candidate) pair, both grown by ``sigmas`` σ of the pair's offset (:func:`offset_sigma`),
+    the match distance capped at ``max_match_m``.
+
+    Args:
+        own, coupled: as :func:`offset_sigma`; map_diagonal: (2F,) the variances of the
+            candidates' nearest control points' x and y (m²; anything where fixed);
+            near: (F, 2) their state rows (−1: fixed, no variance).
+        sigmas: σ multiple; match_m, gate_m: the thresholds before growing (m).
+    """
+    k, f = coupled.shape
+    map_variance = np.zeros(f)
+    for j in range(f):
+        if near[j, 0] >= 0:
+            map_variance[j] = map_diagonal[2 * j] + map_diagonal[2 * j + 1]
+    out = np.empty((2, k, f))
+    for i in range(k):
+        for j in range(f):
+            grow = sigmas * _sigma(own[i], coupled[i, j], map_variance[j])
+            out[0, i, j] = gate_m + grow
+            out[1, i, j] = _nan_min(match_m + grow, max_match_m)
+    return out
 
 
 # -- the stacked Jacobian ---------------------------------------------------------------------

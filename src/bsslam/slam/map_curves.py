@@ -42,10 +42,9 @@ class MapCurves:
         self._in_state = self.state_rows[:, 0] >= 0
         self._all_in_state = bool(self._in_state.all())
         self._fixed = fixed
-        # a map that never moves (localisation in a fixed map): its batch and boxes once
+        # a map that never moves (localisation in a fixed map): its batch once
         self._static = not self._in_state.any()
         self._static_batch: CurveBatch | None = None
-        self._static_boxes: np.ndarray | None = None
 
     @property
     def fixed_control_points(self) -> np.ndarray:
@@ -120,14 +119,6 @@ class MapCurves:
                 self._static_batch = self.table.with_control_points(self._fixed)
             return self._static_batch
         return self.table.with_control_points(self.control_points(x), curves)
-
-    def bboxes(self, x: np.ndarray) -> np.ndarray:
-        """(C, 4) bounding boxes (x_min, y_min, x_max, y_max) of the control polygons (m)."""
-        if self._static:
-            if self._static_boxes is None:
-                self._static_boxes = self.table.bboxes(self._fixed)
-            return self._static_boxes
-        return self.table.bboxes(self.control_points(x))
 
 
 def _rows_of(features: list[SplineFeature]) -> tuple[np.ndarray, np.ndarray]:

@@ -131,18 +131,6 @@ class CurveTable:
         # times the whole loop; a min or max does not round, so the boxes are the same
         return kernels.bboxes(np.asarray(control_points, dtype=float), self.cp_start)
 
-    def extreme_control_points(self, control_points: np.ndarray, curves: np.ndarray, point: np.ndarray,
-                               farthest: bool = False) -> np.ndarray:
-        """(len(curves),) row of each curve's control point nearest to (or farthest from)
-        ``point`` (2,), among stacked control points (N, 2) (m)."""
-        curves = np.asarray(curves, dtype=np.intp)
-        count = self.cp_start[curves + 1] - self.cp_start[curves]
-        owner = np.repeat(np.arange(curves.shape[0]), count)
-        rows = np.arange(owner.shape[0]) - np.repeat(np.cumsum(count) - count, count) + self.cp_start[curves][owner]
-        d2 = np.sum((control_points[rows] - point) ** 2, axis=1)
-        order = np.lexsort((-d2 if farthest else d2, owner))
-        return rows[order[np.cumsum(count) - count]]
-
     def locate(self, curve: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Global piece (m,), local parameter u = t − piece_lo (m,) and the clamped t (m,)
         of parameters ``t`` (m,) on curves ``curve`` (m,). As for one curve, ``t`` is
