@@ -224,3 +224,19 @@ def _window_max(values: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarra
     bounds[0::2] = lo
     bounds[1::2] = hi + 1
     return np.maximum.reduceat(np.append(values, 0.0), bounds)[0::2]
+
+
+def numpy_valid_beams(ranges: np.ndarray, no_return_m: float, min_range_m: float) -> tuple[np.ndarray, dict[str, int]]:
+    """valid_beams' mask and counts as numpy computed them (bsslam.scan.segment_kernels.beam_validity)."""
+    finite = np.isfinite(ranges)
+    no_return = finite & (ranges >= no_return_m)
+    too_close = finite & ~no_return & (ranges <= min_range_m)
+    mask = finite & ~no_return & ~too_close
+    counts = {
+        "beams": int(ranges.shape[0]),
+        "valid": int(np.count_nonzero(mask)),
+        "nonfinite": int(ranges.shape[0] - np.count_nonzero(finite)),
+        "no_return": int(np.count_nonzero(no_return)),
+        "too_close": int(np.count_nonzero(too_close)),
+    }
+    return mask, counts

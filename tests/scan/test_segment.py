@@ -235,3 +235,22 @@ def test_compiled_segmentation_is_the_numpy_segmentation(m, window_m, beams, see
     np.testing.assert_array_equal(got[0], want[0])
     np.testing.assert_array_equal(got[1], want[1])
     assert got[2] == want[2]
+
+
+@settings(max_examples=100, deadline=None)
+@given(n=st.integers(0, 200), no_return=st.sampled_from([None, 3.0, 10.0]), seed=st.integers(0, 2**32 - 1))
+def test_compiled_beam_validity_is_the_numpy_one(n, no_return, seed):
+    """valid_beams' compiled loop gives the numpy form's mask and counts (the oracle), with
+    NaN, ±inf, negative ranges and ranges exactly at the thresholds."""
+    from segment_oracle import numpy_valid_beams
+
+    rng = np.random.default_rng(seed)
+    config = SegmentationConfig(no_return_m=no_return)
+    special = np.array([np.nan, np.inf, -np.inf, -1.0, 0.0, config.min_range_m, 3.0, 10.0, 20.0])
+    ranges = np.where(rng.random(n) < 0.3, rng.choice(special, n), rng.uniform(-1.0, 25.0, n))
+    scan = LaserScan(stamp=0.0, angles=np.linspace(-1.5, 1.5, n), ranges=ranges, max_range=20.0)
+    mask, counts = valid_beams(scan, config)
+    want_mask, want_counts = numpy_valid_beams(ranges, 20.0 if no_return is None else min(20.0, no_return),
+                                               config.min_range_m)
+    np.testing.assert_array_equal(mask, want_mask)
+    assert counts == want_counts

@@ -17,6 +17,7 @@ from bsslam.config import SegmentationConfig
 from bsslam.errors import InputError
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.scan.segment_kernels import (
+    beam_validity,
     direction_breaks,
     direction_windows,
     kept_runs,
@@ -50,18 +51,15 @@ def valid_beams(scan: LaserScan, config: SegmentationConfig) -> tuple[np.ndarray
             ``valid``; each invalid beam is counted under its first reason only.
     """
     ranges = scan.ranges
-    finite = np.isfinite(ranges)
     no_return_m = scan.max_range if config.no_return_m is None else min(scan.max_range, config.no_return_m)
-    # Comparisons with NaN are False, so `finite &` keeps each beam under one reason only.
-    no_return = finite & (ranges >= no_return_m)
-    too_close = finite & ~no_return & (ranges <= config.min_range_m)
-    mask = finite & ~no_return & ~too_close
+    # one compiled loop: each beam counts under its first reason only
+    mask, valid, nonfinite, no_return, too_close = beam_validity(ranges, no_return_m, config.min_range_m)
     counts = {
         "beams": int(ranges.shape[0]),
-        "valid": int(np.count_nonzero(mask)),
-        "nonfinite": int(ranges.shape[0] - np.count_nonzero(finite)),
-        "no_return": int(np.count_nonzero(no_return)),
-        "too_close": int(np.count_nonzero(too_close)),
+        "valid": valid,
+        "nonfinite": nonfinite,
+        "no_return": no_return,
+        "too_close": too_close,
     }
     return mask, counts
 

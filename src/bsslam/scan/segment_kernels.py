@@ -283,3 +283,32 @@ def kept_runs(cut, gap_cut, path, min_points, min_length_m):
             rejected += 1
         start = e + 1
     return bounds[:, :k], shape_cuts, rejected
+
+
+@jit
+def beam_validity(ranges, no_return_m, min_range_m):
+    """Each beam's first reason to be invalid (segment's ``valid_beams``).
+
+    Args:
+        ranges: (n,) ranges (m); no_return_m: ranges at or above it are no return;
+        min_range_m: ranges at or below it are too close.
+
+    Returns:
+        valid: (n,) bool; then the numbers of valid, non-finite, no-return and too-close
+        beams.
+    """
+    n = ranges.shape[0]
+    valid = np.zeros(n, dtype=np.bool_)
+    n_valid = n_nonfinite = n_no_return = n_too_close = 0
+    for k in range(n):
+        r = ranges[k]
+        if not np.isfinite(r):
+            n_nonfinite += 1
+        elif r >= no_return_m:
+            n_no_return += 1
+        elif r <= min_range_m:
+            n_too_close += 1
+        else:
+            valid[k] = True
+            n_valid += 1
+    return valid, n_valid, n_nonfinite, n_no_return, n_too_close
