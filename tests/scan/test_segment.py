@@ -194,7 +194,7 @@ def test_segments_are_ordered_disjoint_runs_that_meet_the_limits(seed, m, window
 @settings(max_examples=60, deadline=None)
 @given(m=st.integers(1, 60), t=st.integers(0, 30), seed=st.integers(0, 2**32 - 1))
 def test_window_max_is_the_maximum_of_each_window(m, t, seed):
-    from bsslam.scan.segment import _window_max
+    from segment_oracle import _window_max
 
     rng = np.random.default_rng(seed)
     values = rng.uniform(0.0, 3.0, m)
@@ -202,3 +202,55 @@ def test_window_max_is_the_maximum_of_each_window(m, t, seed):
     hi = np.minimum(lo + rng.integers(0, 12, t), m - 1)
     want = np.array([values[a:b + 1].max() for a, b in zip(lo, hi)])
     np.testing.assert_array_equal(_window_max(values, lo, hi), want.reshape(t))
+
+
+def _scan_like(rng, m):
+    """(m, 2) points of a noisy scan: straight pieces turning at random corners, with
+    jumps, repeated points and dense stretches; and (m,) increasing beam numbers with
+    dropped beams."""
+    turn = np.where(rng.random(m) < 0.06, rng.uniform(-2.0, 2.0, m), rng.normal(0.0, 0.02, m))
+    heading = np.cumsum(turn)
+    step = rng.exponential(0.02, m) * np.where(rng.random(m) < 0.04, 40.0, 1.0)
+    step[rng.random(m) < 0.03] = 0.0
+    pts = np.cumsum(step[:, None] * np.column_stack([np.cos(heading), np.sin(heading)]), axis=0)
+    pts += rng.normal(0.0, 0.005, (m, 2))
+    beams = np.cumsum(1 + (rng.random(m) < 0.1) * rng.integers(1, 5, m))
+    return pts, beams
+
+
+@settings(max_examples=150, deadline=None)
+@given(m=st.integers(0, 400), window_m=st.sampled_from([0.0, 0.05, 0.2, 0.5]), beams=st.booleans(),
+       seed=st.integers(0, 2**32 - 1))
+def test_compiled_segmentation_is_the_numpy_segmentation(m, window_m, beams, seed):
+    """The compiled shape tests (scan.segment_kernels) give the numpy form's runs and counts
+    (the oracle), bit for bit: the same operations in the same order."""
+    from segment_oracle import numpy_segment_bounds_counted
+
+    from bsslam.scan.segment import segment_bounds_counted
+
+    pts, beam_index = _scan_like(np.random.default_rng(seed), m)
+    beam_index = beam_index if beams else None
+    got = segment_bounds_counted(pts, CFG, beam_index=beam_index, window_m=window_m)
+    want = numpy_segment_bounds_counted(pts, CFG, beam_index=beam_index, window_m=window_m)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+    assert got[2] == want[2]
+
+
+@settings(max_examples=100, deadline=None)
+@given(n=st.integers(0, 200), no_return=st.sampled_from([None, 3.0, 10.0]), seed=st.integers(0, 2**32 - 1))
+def test_compiled_beam_validity_is_the_numpy_one(n, no_return, seed):
+    """valid_beams' compiled loop gives the numpy form's mask and counts (the oracle), with
+    NaN, ±inf, negative ranges and ranges exactly at the thresholds."""
+    from segment_oracle import numpy_valid_beams
+
+    rng = np.random.default_rng(seed)
+    config = SegmentationConfig(no_return_m=no_return)
+    special = np.array([np.nan, np.inf, -np.inf, -1.0, 0.0, config.min_range_m, 3.0, 10.0, 20.0])
+    ranges = np.where(rng.random(n) < 0.3, rng.choice(special, n), rng.uniform(-1.0, 25.0, n))
+    scan = LaserScan(stamp=0.0, angles=np.linspace(-1.5, 1.5, n), ranges=ranges, max_range=20.0)
+    mask, counts = valid_beams(scan, config)
+    want_mask, want_counts = numpy_valid_beams(ranges, 20.0 if no_return is None else min(20.0, no_return),
+                                               config.min_range_m)
+    np.testing.assert_array_equal(mask, want_mask)
+    assert counts == want_counts

@@ -117,3 +117,35 @@ def test_compiled_search_is_the_numpy_search(degree, sizes, spacing, gain, tiny,
     want = numpy_surviving_counts(runs, degree, gain)
     for g, w in zip(got, want, strict=True):
         assert g.tolist() == w.tolist()
+
+
+@SETTINGS
+@given(degree=st.integers(1, 4), sizes=st.lists(st.integers(4, 80), min_size=1, max_size=3),
+       spacing=st.floats(0.01, 0.5), gain=st.sampled_from([None, 1.2, 1.5, 3.0, 10.0]),
+       tiny=st.booleans(), seed=st.integers(0, 2**32 - 1))
+def test_step_by_step_search_visits_the_numpy_searchs_counts(degree, sizes, spacing, gain, tiny, seed):
+    """The lazy search (fit_kernels.next_fit_setup), restarted below each count it returns,
+    visits exactly the counts the numpy search keeps whose setup passes Schoenberg–Whitney,
+    in order, each with fit_setup's knots and collocation matrix."""
+    from bsslam.spline.fit import _SCREEN_FEW_DATA, _SCREEN_HALF_WIDTH, _SCREEN_MARGIN, _SCREEN_SHIFT
+    from bsslam.spline.fit_kernels import fit_setup, next_fit_setup
+
+    screen = gain is not None
+    limit = gain ** 2 * (1.0 + _SCREEN_MARGIN) if screen else 0.0
+    runs = _runs(np.random.default_rng(seed), sizes, spacing, degree, tiny)
+    for (t, distinct, mult, most), kept in zip(runs, numpy_surviving_counts(runs, degree, gain) if runs else []):
+        want = [int(c) for c in kept if fit_setup(t, distinct, int(c), degree)[0] != 1]
+        got = []
+        below = most
+        while below >= 1:
+            spans, status, knots, collocation = next_fit_setup(
+                t, distinct, mult, most, below, degree, screen, limit, _SCREEN_FEW_DATA, _SCREEN_HALF_WIDTH,
+                1.0 + _SCREEN_SHIFT)
+            if spans == 0:
+                break
+            w_status, w_knots, w_collocation = fit_setup(t, distinct, spans, degree)
+            assert status == w_status
+            assert np.array_equal(knots, w_knots) and np.array_equal(collocation, w_collocation)
+            got.append(spans)
+            below = spans - 1
+        assert got == want

@@ -15,7 +15,7 @@ import scipy.linalg
 from bsslam.errors import FitError, SplineError
 from bsslam.spline.basis import basis_functions, collocation_matrix
 from bsslam.spline.curve import BSplineCurve, as_points
-from bsslam.spline.fit_kernels import fit_setup, run_parameters, span_survivors
+from bsslam.spline.fit_kernels import fit_setup, next_fit_setup, run_parameters, span_survivors
 from bsslam.spline.knots import check_degree, clamped_knots_with_spans, span_count
 
 # Relative size of R's smallest diagonal entry (QR of the collocation matrix) below which
@@ -335,8 +335,7 @@ def _fit_from(pts: np.ndarray, t: np.ndarray, distinct: np.ndarray, multiplicity
         if fit is not _REJECTED:  # undecided: the search decides this count and the rest
             break
         most -= 1
-    fit = _first_fit(pts, t, distinct, iter_span_counts(t, distinct, multiplicity, degree, most, max_noise_gain),
-                     degree, max_noise_gain)
+    fit = _search_fit(pts, t, distinct, multiplicity, degree, most, max_noise_gain) if most >= 1 else None
     if fit is not None:
         return fit
     raise FitError(
@@ -344,24 +343,31 @@ def _fit_from(pts: np.ndarray, t: np.ndarray, distinct: np.ndarray, multiplicity
         "(Schoenberg–Whitney fails: too few distinct points)")
 
 
-def _first_fit(pts: np.ndarray, t: np.ndarray, distinct: np.ndarray, counts, degree: int,
-               max_noise_gain: float | None) -> FitResult | None:
-    """The fit on the first of the span ``counts`` (descending, from the search) that the
-    exact test accepts, or None."""
-    for spans in counts:
-        fit = _fit_with_spans(pts, t, distinct, int(spans), degree, max_noise_gain)
-        if isinstance(fit, FitResult):
-            return fit
-        if fit is _REJECTED:
-            continue
-        # a knot vector with an empty span: find_span's clamping decides the spans
-        knots = clamped_knots_with_spans(float(t[-1] - t[0]), int(spans), degree, start=float(t[0]))
-        knots[-degree - 1 :] = t[-1]  # exactly the last parameter, not start + length
-        phi = least_squares_operator(collocation_matrix(knots, degree, t), max_noise_gain)
-        if phi is None:
-            continue
-        curve = BSplineCurve.unchecked(phi @ pts, knots, degree)
-        return FitResult(curve=curve, phi=phi, params=t)
+def _search_fit(pts: np.ndarray, t: np.ndarray, distinct: np.ndarray, multiplicity: np.ndarray, degree: int,
+                most: int, max_noise_gain: float | None) -> FitResult | None:
+    """The fit on the first of the span counts ``most … 1`` that the search keeps
+    (:func:`iter_span_counts`) and the exact test accepts, or None. The counts are
+    screened one at a time, each with its setup, and none after the accepted one
+    (:func:`bsslam.spline.fit_kernels.next_fit_setup`)."""
+    screen = max_noise_gain is not None
+    # the limit as the numpy form computed it (a Python float), so the kernel compares alike
+    limit = max_noise_gain ** 2 * (1.0 + _SCREEN_MARGIN) if screen else 0.0
+    below = most
+    while below >= 1:
+        spans, status, knots, collocation = next_fit_setup(
+            t, distinct, multiplicity, most, below, degree, screen, limit, _SCREEN_FEW_DATA, _SCREEN_HALF_WIDTH,
+            1.0 + _SCREEN_SHIFT)
+        if spans == 0:
+            return None
+        below = spans - 1
+        if status == 2:
+            # a knot vector with an empty span: find_span's clamping decides the spans
+            knots = clamped_knots_with_spans(float(t[-1] - t[0]), spans, degree, start=float(t[0]))
+            knots[-degree - 1 :] = t[-1]  # exactly the last parameter, not start + length
+            collocation = collocation_matrix(knots, degree, t)
+        phi = least_squares_operator(collocation, max_noise_gain)
+        if phi is not None:
+            return FitResult(curve=BSplineCurve.unchecked(phi @ pts, knots, degree), phi=phi, params=t)
     return None
 
 
@@ -373,7 +379,7 @@ def fit_runs(points: np.ndarray, starts: np.ndarray, ends: np.ndarray, degree: i
     All runs' parameters come from one compiled loop; each run's knot vector,
     Schoenberg–Whitney test and collocation matrix at the most spans from another
     (:func:`bsslam.spline.fit_kernels.fit_setup`), then one factorisation. The runs whose
-    most spans fail go through :func:`fit_curve`'s search together; unusual runs (repeated
+    most spans fail go through :func:`fit_curve`'s search from one fewer; unusual runs (repeated
     parameters, an empty knot span, too few points) through fit_curve itself.
 
     Args:
@@ -425,12 +431,9 @@ def fit_runs(points: np.ndarray, starts: np.ndarray, ends: np.ndarray, degree: i
             except FitError:
                 results[i] = None
         return results
-    failed = [f for f in failed if f[3] >= 1]          # no count left: FitError (None)
-    if failed:
-        searched = _surviving_counts([(t_run, t_run, _ones(t_run.shape[0]), fewer) for _, _, t_run, fewer in failed],
-                                     p, max_noise_gain)
-        for (i, pts, t_run, _), counts in zip(failed, searched):
-            results[i] = _first_fit(pts, t_run, t_run, counts, p, max_noise_gain)
+    for i, pts, t_run, fewer in failed:
+        if fewer >= 1:                                 # else no count left: FitError (None)
+            results[i] = _search_fit(pts, t_run, t_run, _ones(t_run.shape[0]), p, fewer, max_noise_gain)
     return results
 
 

@@ -190,6 +190,93 @@ def _block_bound(band, n, c, p, h, shift):
 
 
 @jit
+def _has_empty_span(distinct, most, p):
+    """Whether the clamped knot vector on ``distinct``'s range of some span count
+    ``most … 1`` has an empty domain span (a length of a few ulps of the start): the
+    search then decides all the run's candidates from basis values."""
+    d = distinct.shape[0]
+    start, end = distinct[0], distinct[d - 1]
+    length = end - start
+    for spans in range(most, 0, -1):
+        knots = _clamped_knots(start, end, length, spans, p)
+        for i in range(p, spans + p):
+            if not knots[i + 1] > knots[i]:
+                return True
+    return False
+
+
+@jit
+def _survives(distinct, multiplicity, spans, p, by_basis, screen, limit, few_data, h, shift):
+    """Whether span count ``spans`` survives the search of :func:`span_survivors` (its
+    Schoenberg–Whitney test and noise-gain screen; ``by_basis`` from
+    :func:`_has_empty_span` over all the run's candidates)."""
+    d = distinct.shape[0]
+    start, end = distinct[0], distinct[d - 1]
+    length = end - start
+    left, right, temp = np.empty(p), np.empty(p), np.empty(p)
+    beta = np.empty((d, p + 1))
+    spans_at = np.empty(d, dtype=np.intp)
+    n = spans + p
+    knots = _clamped_knots(start, end, length, spans, p)
+    first = np.empty(n, dtype=np.intp)
+    last = np.empty(n, dtype=np.intp)
+    if by_basis:
+        # the data of each support: where its basis function is positive
+        first[:] = d
+        last[:] = -1
+        for j in range(d):
+            span = _span(knots, p, n, distinct[j])
+            spans_at[j] = span
+            _basis_row(knots, p, distinct[j], span, left, right, temp, beta[j])
+            for r in range(p + 1):
+                if beta[j, r] > 0:
+                    first[span - p + r] = min(first[span - p + r], j)
+                    last[span - p + r] = max(last[span - p + r], j)
+    else:
+        # function i is non-zero exactly at the data strictly inside (ξ_i, ξ_{i+p+1})
+        # (the first also at the start, the last at the end)
+        for i in range(n):
+            first[i] = 0 if i == 0 else _search_right(distinct, knots[i])
+            last[i] = d - 1 if i == n - 1 else _search_left(distinct, knots[i + p + 1]) - 1
+    top = -(1 << 62)
+    for i in range(n):
+        top = max(top, first[i] - i)
+        if i + top > last[i] or last[i] < 0:
+            return False
+    if not screen:
+        return True
+    # the tested control points and the data their blocks need
+    tested = np.zeros(n, dtype=np.bool_)
+    needed = np.zeros(d, dtype=np.bool_)
+    for i in range(n):
+        if by_basis or last[i] - first[i] < few_data:
+            tested[i] = True
+            for j in range(first[max(i - h, 0)], last[min(i + h, n - 1)] + 1):
+                needed[j] = True
+    if by_basis:
+        needed[:] = True
+    # band of A = BᵀB from those data, in datum order (the sums of a bincount)
+    band = np.zeros((n, p + 1))
+    for j in range(d):
+        if not needed[j]:
+            continue
+        if not by_basis:
+            spans_at[j] = _span(knots, p, n, distinct[j])
+            _basis_row(knots, p, distinct[j], spans_at[j], left, right, temp, beta[j])
+        c0 = spans_at[j] - p
+        for ri in range(p + 1):
+            wb = multiplicity[j] * beta[j, ri]
+            for rj in range(ri, p + 1):
+                band[c0 + ri, rj - ri] += wb * beta[j, rj]
+    for i in range(n):
+        if tested[i]:
+            s = _block_bound(band, n, i, p, h, shift)
+            if s > 0 and s * limit < 1.0:
+                return False
+    return True
+
+
+@jit
 def span_survivors(distinct, multiplicity, most, p, screen, limit, few_data, h, shift):
     """Which span counts ``most … 1`` fit_curve's search must still try (the decision of
     ``fit.iter_span_counts``): Schoenberg–Whitney on the distinct parameters and, with
@@ -214,78 +301,34 @@ def span_survivors(distinct, multiplicity, most, p, screen, limit, few_data, h, 
     Returns:
         (most,) bool: whether span count ``most − i`` survives.
     """
-    d = distinct.shape[0]
-    start, end = distinct[0], distinct[d - 1]
-    length = end - start
-    by_basis = False
-    for spans in range(most, 0, -1):
-        knots = _clamped_knots(start, end, length, spans, p)
-        for i in range(p, spans + p):
-            if not knots[i + 1] > knots[i]:
-                by_basis = True
+    by_basis = _has_empty_span(distinct, most, p)
     keep = np.zeros(most, dtype=np.bool_)
-    left, right, temp = np.empty(p), np.empty(p), np.empty(p)
-    beta = np.empty((d, p + 1))
-    spans_at = np.empty(d, dtype=np.intp)
     for spans in range(most, 0, -1):
-        n = spans + p
-        knots = _clamped_knots(start, end, length, spans, p)
-        first = np.empty(n, dtype=np.intp)
-        last = np.empty(n, dtype=np.intp)
-        if by_basis:
-            # the data of each support: where its basis function is positive
-            first[:] = d
-            last[:] = -1
-            for j in range(d):
-                span = _span(knots, p, n, distinct[j])
-                spans_at[j] = span
-                _basis_row(knots, p, distinct[j], span, left, right, temp, beta[j])
-                for r in range(p + 1):
-                    if beta[j, r] > 0:
-                        first[span - p + r] = min(first[span - p + r], j)
-                        last[span - p + r] = max(last[span - p + r], j)
-        else:
-            # function i is non-zero exactly at the data strictly inside (ξ_i, ξ_{i+p+1})
-            # (the first also at the start, the last at the end)
-            for i in range(n):
-                first[i] = 0 if i == 0 else _search_right(distinct, knots[i])
-                last[i] = d - 1 if i == n - 1 else _search_left(distinct, knots[i + p + 1]) - 1
-        ok = True
-        top = -(1 << 62)
-        for i in range(n):
-            top = max(top, first[i] - i)
-            if i + top > last[i] or last[i] < 0:
-                ok = False
-                break
-        if ok and screen:
-            # the tested control points and the data their blocks need
-            tested = np.zeros(n, dtype=np.bool_)
-            needed = np.zeros(d, dtype=np.bool_)
-            for i in range(n):
-                if by_basis or last[i] - first[i] < few_data:
-                    tested[i] = True
-                    for j in range(first[max(i - h, 0)], last[min(i + h, n - 1)] + 1):
-                        needed[j] = True
-            if by_basis:
-                needed[:] = True
-            # band of A = BᵀB from those data, in datum order (the sums of a bincount)
-            band = np.zeros((n, p + 1))
-            for j in range(d):
-                if not needed[j]:
-                    continue
-                if not by_basis:
-                    spans_at[j] = _span(knots, p, n, distinct[j])
-                    _basis_row(knots, p, distinct[j], spans_at[j], left, right, temp, beta[j])
-                c0 = spans_at[j] - p
-                for ri in range(p + 1):
-                    wb = multiplicity[j] * beta[j, ri]
-                    for rj in range(ri, p + 1):
-                        band[c0 + ri, rj - ri] += wb * beta[j, rj]
-            for i in range(n):
-                if tested[i]:
-                    s = _block_bound(band, n, i, p, h, shift)
-                    if s > 0 and s * limit < 1.0:
-                        ok = False
-                        break
-        keep[most - spans] = ok
+        keep[most - spans] = _survives(distinct, multiplicity, spans, p, by_basis, screen, limit, few_data, h, shift)
     return keep
+
+
+@jit
+def next_fit_setup(t, distinct, multiplicity, most, below, p, screen, limit, few_data, h, shift):
+    """The search of fit_curve one step at a time: the first span count ``below … 1``
+    that survives :func:`span_survivors` (candidates ``most … 1``) and whose
+    :func:`fit_setup` does not fail Schoenberg–Whitney, with that setup. The counts after
+    the accepted one are never screened.
+
+    Args:
+        t: (m,) non-decreasing data parameters (m); distinct, multiplicity: (d,) their
+            distinct values and counts; most: the search's largest count ≥ 1; below: the
+            count to start from (≤ most); the rest as :func:`span_survivors`.
+
+    Returns:
+        spans: the count (0 if none is left); then :func:`fit_setup`'s status (0 ready,
+        2 undecided), knots and collocation matrix for it.
+    """
+    by_basis = _has_empty_span(distinct, most, p)
+    for spans in range(below, 0, -1):
+        if not _survives(distinct, multiplicity, spans, p, by_basis, screen, limit, few_data, h, shift):
+            continue
+        status, knots, collocation = fit_setup(t, distinct, spans, p)
+        if status != 1:
+            return spans, status, knots, collocation
+    return 0, 1, np.zeros(0), np.zeros((0, 0))
