@@ -42,18 +42,25 @@ from bsslam.sim.geometry import WallSet, rounded_rectangle_walls  # noqa: E402
 from bsslam.sim.paths import rounded_rectangle_loop  # noqa: E402
 from bsslam.sim.worlds import World  # noqa: E402
 from bsslam.slam import SplineSLAM  # noqa: E402
+from bsslam.slam.state import JointState  # noqa: E402
 
 BINS = [0, 250, 500, 750, 1000, 1250, 1500, 2000, 3000, 10**9]
-# Stages in the order of a scan; each is the total time of the listed callables, which never
-# call one another, so the stages do not overlap. "other" is the rest of step() (beam
-# grouping, row selection, bookkeeping). The covariance columns are gathered inside the S/gain
-# callables, which include the mean correction of the whole state. The covariance update is deferred and folded in every few scans (JointState), so
-# its mean, not its median, is its cost per scan.
+# Stages in the order of a scan; each is the time spent in the listed callables, less the time
+# of other listed callables they call (so the stages do not overlap). "other" is the rest of
+# step() (beam grouping, row selection, bookkeeping).
+# - "covariance reads" are the reads of P through the state's deferred update (base − B G Bᵀ):
+#   the blocks the gains, gates and association read, and P[:, cols]·v, the mean correction of
+#   the whole state. They grow with the state (n rows) and with the deferred term's width.
+# - "S/gain" is the rest of the gains: S = H P Hᵀ + R, its factorisation and the solves.
+# - "covariance update" is the deferred low-rank update and, every few scans, the O(n²) fold of
+#   the deferred term into P (JointState), so its mean, not its median, is its cost per scan.
 STAGES = {
     "predict": [(filter_module, "predict")],
     "segment+fit": [(SplineSLAM, "_observe")],
     "associate": [(SplineSLAM, "_associate")],
     "linearise": [(SplineSLAM, "_linearize")],
+    "covariance reads": [(JointState, "block"), (JointState, "diagonal"), (JointState, "rows"),
+                         (JointState, "columns_times")],
     "S/gain": [(ekf_module.StackedGain, "__init__"), (ekf_module.StackedGain, "correction"),
                (ekf_module.StackedGain, "state_correction"), (ekf_module.StackedGain, "pose_variances"),
                (ekf_module.StackedGain, "posterior_variances"), (filter_module, "innovation_variances")],
@@ -109,11 +116,14 @@ def run(frames, config, stage_times=None, profile_window=None):
 
 
 class _StageClock:
-    """Wraps the callables of STAGES with timers (~1 µs each call)."""
+    """Wraps the callables of STAGES with timers (~1 µs each call). A timed callable called
+    from another counts for its own stage only: the caller's stage is charged its exclusive
+    time."""
 
     def __init__(self):
         self.acc = dict.fromkeys(STAGES, 0.0)
         self._saved = []
+        self._inner = []   # per active timed call: time spent in timed calls nested in it
 
     def install(self):
         for stage, targets in STAGES.items():
@@ -130,15 +140,19 @@ class _StageClock:
         self._saved.clear()
 
     def _wrap(self, fn, stage):
-        acc = self.acc
+        acc, inner = self.acc, self._inner
 
         @functools.wraps(fn)
         def timed(*args, **kwargs):
+            inner.append(0.0)
             t0 = time.perf_counter()
             try:
                 return fn(*args, **kwargs)
             finally:
-                acc[stage] += time.perf_counter() - t0
+                elapsed = time.perf_counter() - t0
+                acc[stage] += elapsed - inner.pop()
+                if inner:
+                    inner[-1] += elapsed
         return timed
 
     def reset(self):
