@@ -75,7 +75,13 @@ class JointState:
         self._G = np.zeros((max_pending, max_pending))
         self._a = 0
         self._reg = np.full(capacity, -1, dtype=np.intp)   # basis column equal to base[:, j], or −1
-        self._pose_pending: np.ndarray | None = None       # B[POSE] G, read several times a scan
+        # rows B[j] G of the pending term, kept until G or B change: a scan reads them for
+        # the pose several times, and for the update's columns twice (the gain's P[cols, rows],
+        # then the update itself); each costs a² multiply-adds
+        self._bg = np.empty((64, max_pending))
+        self._bg_index = np.empty(64, dtype=np.intp)   # the state index of each kept row
+        self._bg_slot = np.full(capacity, -1, dtype=np.intp)   # row of _bg holding index j, or −1
+        self._bg_count = 0
         self.size = 3
         self._x[:3] = np.asarray(pose, dtype=float)
         C = np.asarray(pose_covariance, dtype=float)
@@ -118,13 +124,35 @@ class JointState:
         return self.block(POSE, POSE)
 
     def _pending_rows(self, rows: np.ndarray) -> np.ndarray:
-        """(r, a) B[rows] G: the pending term's rows are this times Bᵀ."""
-        a = self._a
-        if rows is POSE:
-            if self._pose_pending is None:
-                self._pose_pending = self._B[POSE, :a] @ self._G[:a, :a]
-            return self._pose_pending
-        return self._B[rows, :a] @ self._G[:a, :a]
+        """(r, a) B[rows] G: the pending term's rows are this times Bᵀ (a new array)."""
+        rows = np.asarray(rows, dtype=np.intp)
+        slot = self._bg_slot[rows]
+        missing = rows[slot < 0]
+        if missing.size:
+            new = np.unique(missing)
+            start, end = self._bg_count, self._bg_count + new.shape[0]
+            if end > self._bg.shape[0]:
+                grown = max(2 * self._bg.shape[0], end)
+                self._bg = np.concatenate([self._bg[:start], np.empty((grown - start, self._bg.shape[1]))])
+                self._bg_index = np.concatenate([self._bg_index[:start], np.empty(grown - start, dtype=np.intp)])
+            a = self._a
+            self._bg[start:end, :a] = self._B[new, :a] @ self._G[:a, :a]
+            self._bg_index[start:end] = new
+            self._bg_slot[new] = np.arange(start, end)
+            self._bg_count = end
+            slot = self._bg_slot[rows]
+        return self._bg[slot, : self._a]
+
+    def _forget_pending_rows(self) -> None:
+        """G or B changed: the kept rows B[j] G are stale."""
+        self._bg_slot[self._bg_index[: self._bg_count]] = -1
+        self._bg_count = 0
+
+    def _widen(self, a: int) -> None:
+        """The basis grows to ``a`` columns (new columns of B written by the caller). G is
+        zero outside its live block, so the kept rows B[j] G only gain zero entries."""
+        self._bg[: self._bg_count, self._a : a] = 0.0
+        self._a = a
 
     def rows(self, rows: np.ndarray) -> np.ndarray:
         """(r, n) ``P[rows, :]`` (a new, C-ordered array)."""
@@ -145,7 +173,7 @@ class JointState:
         out = v @ self.base[cols]          # base is symmetric: its rows are its columns
         if self._a:
             a = self._a
-            out -= self._B[: self.size, :a] @ (self._G[:a, :a] @ (self._B[cols, :a].T @ v))
+            out -= self._B[: self.size, :a] @ (self._pending_rows(cols).T @ v)
         return out
 
     def block(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -185,13 +213,13 @@ class JointState:
         n = self.size
         self._B[:n, a0:a] = self.base[joining].T    # base is symmetric: its rows are its columns
         self._reg[joining] = np.arange(a0, a)
-        self._a = a
+        self._widen(a)
         # P[:, cols] = base[:, cols] − B G B[cols]ᵀ = B C: base[:, cols] is a basis column
-        C = -(self._G[:a, :a] @ self._B[cols, :a].T)
+        C = -self._pending_rows(cols).T
         C[self._reg[cols], np.arange(cols.shape[0])] += 1.0
         E = C @ W
         self._G[:a, :a] += E @ E.T
-        self._pose_pending = None
+        self._forget_pending_rows()
 
     def fold(self) -> None:
         """Fold the pending update into the base: base ← base − B G Bᵀ, basis emptied."""
@@ -202,7 +230,7 @@ class JointState:
             self._G[:a, :a] = 0.0
             self._reg[:n] = -1
             self._a = 0
-            self._pose_pending = None
+            self._forget_pending_rows()
 
     def transform(self, idx: np.ndarray, T: np.ndarray) -> None:
         """x[idx] ← T x[idx] and P ← A P Aᵀ, A the identity with T on the block ``idx``.
@@ -228,7 +256,7 @@ class JointState:
             B = self._B[:, : self._a]
             B[idx] = T @ B[idx]
         self._reg[idx] = -1
-        self._pose_pending = None
+        self._forget_pending_rows()
 
     # -- growth --------------------------------------------------------------------------
     def _reserve(self, new_size: int) -> None:
@@ -246,7 +274,9 @@ class JointState:
         P[:n, :n] = self.base
         B[:n, : self._a] = self._B[:n, : self._a]
         reg[:n] = self._reg[:n]
+        self._forget_pending_rows()
         self._x, self._P, self._B, self._reg = x, P, B, reg
+        self._bg_slot = np.full(capacity, -1, dtype=np.intp)
 
     def append(self, mean: np.ndarray, cross: np.ndarray, block: np.ndarray) -> np.ndarray:
         """Augment the state with k new entries of given covariance.
@@ -333,6 +363,7 @@ class JointState:
             self._B[first:m, : self._a] = self._B[tail, : self._a]
             self._reg[first:m] = self._reg[tail]
         self._reg[m:n] = -1
+        self._forget_pending_rows()
         self.size = m
         mapping = np.full(n, -1)
         mapping[kept] = np.arange(m)
