@@ -38,3 +38,24 @@ def test_grown_extended_and_pruned_table_equals_the_rebuilt_one(monkeypatch):
         np.testing.assert_array_equal(getattr(kept.table, f.name), getattr(fresh.table, f.name), err_msg=f.name)
     np.testing.assert_array_equal(kept.state_rows, fresh.state_rows)
     np.testing.assert_array_equal(kept.ids, fresh.ids)
+
+
+def test_curve_state_indices_are_the_unique_rows_of_the_curves():
+    """The compiled gather of the working rows against np.unique of the curves' state rows,
+    with fixed control points (−1) and curves sharing none of their rows."""
+    from bsslam.slam.kernels import curve_state_indices
+    from bsslam.spline.batch import kept_rows
+
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        counts = rng.integers(1, 8, size=rng.integers(1, 12))
+        cp_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.intp)
+        n = 3 + 2 * int(cp_start[-1]) + 5
+        state_rows = rng.permutation(np.arange(3, n))[: 2 * cp_start[-1]].reshape(-1, 2).astype(np.intp)
+        state_rows[rng.random(state_rows.shape[0]) < 0.2] = -1          # fixed control points
+        curves = np.sort(rng.choice(counts.size, rng.integers(1, counts.size + 1), replace=False))
+        rows = state_rows[kept_rows(cp_start, curves)[0]].ravel()
+        expected = np.unique(rows[rows >= 0])
+        got = curve_state_indices(state_rows, cp_start, curves, n)
+        np.testing.assert_array_equal(got, expected)
+        assert got.dtype == np.intp

@@ -400,7 +400,7 @@ class SplineSLAM:
         # applied at the first corrected estimate with posterior variances.
         # the entries a relinearisation reads: the pose and the beams' splines (the subsets
         # selected below keep to these curves); the rest of the state is corrected once, at the end
-        work = np.concatenate([POSE, mc.state_indices(beams.used_curves)])
+        work = np.concatenate([POSE, mc.state_indices(beams.used_curves, self.state.size)])
         columns = CovarianceColumns(self.state, work)   # P[work, cols], without folding the pending update
         s_diag = innovation_variances(columns, lin.cols, lin.H_c, R)
         coarse = lin.residual ** 2 <= self._loose_gate * s_diag

@@ -513,3 +513,18 @@ def take_block(P, rows, cols):
         for j in range(cols.shape[0]):
             out[i, j] = P[r, cols[j]]
     return out
+
+
+@jit
+def curve_state_indices(state_rows, cp_start, curves, n):
+    """(k,) sorted distinct state indices of the control points of ``curves`` (stacked rows
+    ``cp_start[c] … cp_start[c+1] − 1`` of ``state_rows`` (N, 2); −1, a fixed control point,
+    has none), for a state of size n: ``np.unique`` of those rows, by one mark per index."""
+    mark = np.zeros(n, dtype=np.bool_)
+    for i in range(curves.shape[0]):
+        c = curves[i]
+        for r in range(cp_start[c], cp_start[c + 1]):
+            for k in range(2):
+                if state_rows[r, k] >= 0:
+                    mark[state_rows[r, k]] = True
+    return np.flatnonzero(mark)

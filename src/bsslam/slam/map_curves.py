@@ -15,6 +15,7 @@ import functools
 import numpy as np
 
 from bsslam.slam.features import SplineFeature
+from bsslam.slam.kernels import curve_state_indices
 from bsslam.spline.batch import CurveBatch, CurveTable, concat_tables, curve_table, kept_rows, take_curves
 
 
@@ -97,10 +98,10 @@ class MapCurves:
         cp, _, _ = kept_rows(self.table.cp_start, curves)
         return take_curves(self.table, curves), self.state_rows[cp], self._fixed[cp]
 
-    def state_indices(self, curves: np.ndarray) -> np.ndarray:
-        """(k,) sorted state indices of the control points of ``curves`` (none for fixed ones)."""
-        rows = self.state_rows[kept_rows(self.table.cp_start, curves)[0]].ravel()
-        return np.unique(rows[rows >= 0])
+    def state_indices(self, curves: np.ndarray, size: int) -> np.ndarray:
+        """(k,) sorted state indices of the control points of ``curves`` (none for fixed ones),
+        in a state of ``size`` entries (compiled: :func:`~bsslam.slam.kernels.curve_state_indices`)."""
+        return curve_state_indices(self.state_rows, self.table.cp_start, np.asarray(curves, dtype=np.intp), size)
 
     def control_points(self, x: np.ndarray) -> np.ndarray:
         """(N, 2) stacked control points at the state mean ``x`` (m); do not modify them."""
