@@ -52,11 +52,6 @@ class Match:
     at_lo: bool
     at_hi: bool
 
-    def map_parameter(self, u: np.ndarray) -> np.ndarray:
-        """Initial guess (linear between the matched ends) of the map parameter for u."""
-        scale = (self.t_fin - self.t_ini) / (self.u_fin - self.u_ini)
-        return self.t_ini + (np.asarray(u) - self.u_ini) * scale
-
 
 def control_point_gaps(a: CurveBatch, b: CurveBatch, ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
     """(k,) smallest distance between a control point of curve ``ia[j]`` of ``a`` and one of

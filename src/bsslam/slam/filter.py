@@ -16,7 +16,7 @@ from bsslam.config import SLAMConfig
 from bsslam.errors import FilterError, FitError, InputError
 from bsslam.scan import LaserScan, ObservedSpline, ScanFeatures, extract_splines
 from bsslam.scan.refine import refine_for_map
-from bsslam.slam import range_kernels
+from bsslam.slam import beam_kernels, range_kernels
 from bsslam.slam.association import Match, associate_curves, association_thresholds
 from bsslam.slam.ekf import CovarianceColumns, StackedGain, gate_threshold, innovation_variances
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
@@ -326,25 +326,23 @@ class SplineSLAM:
 
     def _beam_groups(self, observed: list[ObservedSpline], matches: list[list[Match]]) -> _Beams | None:
         """The beams of the matched intervals, each with its map spline and Newton start;
-        a beam inside several matched intervals goes to the first (by ``u_ini``)."""
-        stride = self.config.observation.beam_stride
-        mc = self._map   # validated by the _associate that produced ``matches``
-        parts = []
-        for obs, obs_matches in zip(observed, matches):  # a handful of splines and matches per scan
-            taken = np.zeros(obs.params.shape[0], dtype=bool)
-            if stride > 1:
-                taken[np.arange(obs.params.shape[0]) % stride != 0] = True
-            for m in obs_matches:
-                sel = ~taken & (obs.params >= m.u_ini) & (obs.params <= m.u_fin)
-                if not sel.any():
-                    continue
-                taken |= sel
-                parts.append((np.full(int(sel.sum()), mc.index[m.feature_id]), obs.angles[sel],
-                              obs.ranges[sel], m.map_parameter(obs.params[sel])))
-        if not parts:
+        a beam inside several matched intervals goes to the first (by ``u_ini``).
+
+        The matches and the matched splines' beams go to one compiled call
+        (:func:`beam_kernels.beam_groups`) as a table and one array: a loop over them here
+        was about a hundred numpy calls a scan."""
+        mc = self._map   # validated by the _associate that produced ``matches`` (None if there are none)
+        table = [(i, obs.params.shape[0], m.u_ini, m.u_fin, m.t_ini, m.t_fin, mc.index[m.feature_id])
+                 for i, (obs, obs_matches) in enumerate(zip(observed, matches)) for m in obs_matches]
+        if not table:
             return None
-        curve, bearings, ranges, t0 = (np.concatenate(p) for p in zip(*parts))
-        return _Beams(curve, bearings, ranges, t0)
+        beams = np.concatenate([a for obs, obs_matches in zip(observed, matches) if obs_matches
+                                for a in (obs.params, obs.angles, obs.ranges)])
+        curve, values = beam_kernels.beam_groups(np.array(table, dtype=float), beams,
+                                                 self.config.observation.beam_stride)
+        if curve.shape[0] == 0:
+            return None
+        return _Beams(curve, values[0], values[1], values[2])
 
     def _linearize(self, beams: _Beams, x: np.ndarray, offset: np.ndarray,
                    report: StepReport | None) -> _Linearization | None:
@@ -367,11 +365,11 @@ class SplineSLAM:
     @staticmethod
     def _select(beams: _Beams, lin: _Linearization, keep: np.ndarray) -> tuple[_Beams, _Linearization]:
         """The beams and their linearisation restricted to the rows in ``keep``, Newton
-        restarted from the rows' last hit parameters."""
-        rows = lin.beam[keep]
-        sub_beams = _Beams(beams.curve[rows], beams.bearings[rows], beams.ranges[rows], lin.hit_t[keep])
-        sub = _Linearization(lin.cols, lin.H_c[keep], lin.residual[keep], np.arange(rows.size), lin.hit_t[keep])
-        return sub_beams, sub
+        restarted from the rows' last hit parameters (one compiled call for the copies)."""
+        index, values, H_c = beam_kernels.select_rows(keep, lin.beam, beams.curve, beams.bearings, beams.ranges,
+                                                      lin.H_c, lin.residual, lin.hit_t)
+        return (_Beams(index[0], values[0], values[1], values[2]),
+                _Linearization(lin.cols, H_c, values[3], index[1], values[4]))
 
     def _update(self, observed, matches, offset, report: StepReport) -> None:
         """Iterated EKF update (Gauss–Newton on the mean, one covariance update at the end).
