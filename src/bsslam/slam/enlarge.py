@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bsslam.slam import enlarge_kernels
 from bsslam.slam.observation import laser_pose
 
 
@@ -36,16 +37,10 @@ def beam_points(robot_pose: np.ndarray, laser_offset: np.ndarray, bearings: np.n
     lp = laser_pose(robot_pose, laser_offset)
     mu = lp[2] + bearings
     cm, sm = np.cos(mu), np.sin(mu)
-    points = np.column_stack([lp[0] + ranges * cm, lp[1] + ranges * sm])
     c, s = np.cos(robot_pose[2]), np.sin(robot_pose[2])
     ox, oy = laser_offset[0], laser_offset[1]
-    k = bearings.shape[0]
-    d_dpose = np.zeros((2, k, 3))
-    d_dpose[0, :, 0] = 1.0
-    d_dpose[1, :, 1] = 1.0
-    d_dpose[0, :, 2] = -s * ox - c * oy - ranges * sm
-    d_dpose[1, :, 2] = c * ox - s * oy + ranges * cm
-    return BeamPoints(points, d_dpose, np.vstack([cm, sm]))
+    return BeamPoints(*enlarge_kernels.beam_arrays(lp[0], lp[1], cm, sm, np.asarray(ranges, dtype=float),
+                                                   -s * ox - c * oy, c * ox - s * oy))
 
 
 @dataclass(frozen=True)
@@ -76,10 +71,8 @@ def stacked_map(A: np.ndarray, bp: BeamPoints) -> tuple[np.ndarray, np.ndarray, 
 
     Returns ([A·D_x; A·D_y] (2q,), Jacobian w.r.t. the pose (2q, 3), w.r.t. ranges (2q, k)).
     """
-    mean = np.concatenate([A @ bp.points[:, 0], A @ bp.points[:, 1]])
-    J_pose = np.vstack([A @ bp.d_dpose[0], A @ bp.d_dpose[1]])
-    G_z = np.vstack([A * bp.d_drange[0][None, :], A * bp.d_drange[1][None, :]])
-    return mean, J_pose, G_z
+    return enlarge_kernels.stacked_arrays(A @ bp.points[:, 0], A @ bp.points[:, 1], A @ bp.d_dpose[0],
+                                          A @ bp.d_dpose[1], A, bp.d_drange)
 
 
 def new_feature_block(phi: np.ndarray, bp: BeamPoints) -> LinearBlock:
@@ -100,11 +93,6 @@ def extension_block(psi_new: np.ndarray, n_old: int, idx_x: np.ndarray, idx_y: n
     """
     psi_o, psi_d = psi_new[:, :n_old], psi_new[:, n_old:]
     data_mean, J_pose, G_z = stacked_map(psi_d, bp)
-    m = psi_new.shape[0]
-    mean = data_mean + np.concatenate([psi_o @ old_control_points[:, 0], psi_o @ old_control_points[:, 1]])
-    J = np.zeros((2 * m, 3 + 2 * n_old))
-    J[:, :3] = J_pose
-    J[:m, 3:3 + n_old] = psi_o
-    J[m:, 3 + n_old:] = psi_o
-    cols = np.concatenate([np.arange(3), idx_x, idx_y])
+    mean, J, cols = enlarge_kernels.extension_arrays(data_mean, J_pose, psi_o @ old_control_points[:, 0],
+                                                     psi_o @ old_control_points[:, 1], psi_o, idx_x, idx_y)
     return LinearBlock(mean, cols, J, G_z)

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from bsslam.errors import FitError, SplineError
-from bsslam.spline.basis import collocation_matrix
+from bsslam.spline import extend_kernels
 from bsslam.spline.curve import BSplineCurve, as_points
-from bsslam.spline.fit import least_squares_operator, satisfies_schoenberg_whitney
+from bsslam.spline.fit import least_squares_operator
 from bsslam.spline.knots import check_degree, check_knots, span_count
 
 _SIDES = ("left", "right")
@@ -58,33 +58,20 @@ def unclamp(
     new = np.asarray(new_knots, dtype=float)
     if new.shape != (p,) or not np.all(np.isfinite(new)) or np.any(np.diff(new) < 0):
         raise SplineError(f"new_knots must be {p} finite non-decreasing values, got {new_knots!r}")
-    transform = np.eye(n + 1)
-    if side == "right":
+    right = side == "right"
+    if right:
         end = u[n + 1]
         if np.any(u[n + 1 :] != end):
             raise SplineError("the right end is not clamped (last knot not repeated degree + 1 times)")
         if not new[0] > end:
             raise SplineError(f"new right knots must lie beyond the domain end {end}, got {new[0]}")
-        for i in range(p - 1):
-            u[n + i + 2] = new[i]
-            for j in range(i, -1, -1):
-                alpha = (u[n + 1] - u[n - j]) / (u[n - j + i + 2] - u[n - j])
-                transform[n - j] = (transform[n - j] - (1.0 - alpha) * transform[n - j - 1]) / alpha
-        u[n + p + 1] = new[p - 1]
     else:
         start = u[p]
         if np.any(u[: p + 1] != start):
             raise SplineError("the left end is not clamped (first knot not repeated degree + 1 times)")
         if not new[-1] < start:
             raise SplineError(f"new left knots must lie before the domain start {start}, got {new[-1]}")
-        for i in range(p - 1):
-            u[p - i - 1] = new[p - i - 1]
-            k = p - 1
-            for j in range(i, -1, -1):
-                alpha = (u[p] - u[k]) / (u[p + j + 1] - u[k])
-                transform[j] = (transform[j] - alpha * transform[j + 1]) / (1.0 - alpha)
-                k -= 1
-        u[0] = new[0]
+    transform = extend_kernels.unclamp_transform(u, p, right, new)
     return u, transform @ cp, transform
 
 
@@ -108,21 +95,6 @@ class Extension:
     n_added: int
     side: str
     T: np.ndarray
-
-
-def extended_knots(knots: np.ndarray, degree: int, side: str, end: float, spans: int) -> np.ndarray:
-    """Knot vector of a curve grown by ``spans`` uniform spans up to the new end ``end``.
-
-    The old end keeps one copy of its knot, the new spans are equal, and the new end is
-    clamped (repeated degree + 1 times). Length grows by ``spans``.
-    """
-    if side == "right":
-        old_end = knots[-degree - 1]
-        interior = old_end + (end - old_end) * (np.arange(1, spans) / spans)
-        return np.concatenate([knots[: -degree - 1], [old_end], interior, np.full(degree + 1, end)])
-    old_start = knots[degree]
-    interior = end + (old_start - end) * (np.arange(1, spans) / spans)
-    return np.concatenate([np.full(degree + 1, end), interior, [old_start], knots[degree + 1 :]])
 
 
 def extend_curve(curve: BSplineCurve, side: str, points: object, params: object, spacing_m: float, *,
@@ -157,35 +129,36 @@ def extend_curve(curve: BSplineCurve, side: str, points: object, params: object,
     if k == 0:
         raise FitError("no data points to extend the curve with")
     lo, hi = curve.domain
-    if side == "right" and not np.all(t > hi):
+    right = side == "right"
+    distinct = extend_kernels.sorted_distinct(t)
+    if right and not distinct[0] > hi:
         raise SplineError(f"right extension parameters must all be > the domain end {hi}")
-    if side == "left" and not np.all(t < lo):
+    if not right and not distinct[-1] < lo:
         raise SplineError(f"left extension parameters must all be < the domain start {lo}")
-    end = float(t.max() if side == "right" else t.min())
-    extent = end - hi if side == "right" else lo - end
-    distinct = np.unique(t)
+    end = float(distinct[-1] if right else distinct[0])
+    extent = end - hi if right else lo - end
     n_old = curve.n_control
     most = min(span_count(extent, spacing_m), distinct.shape[0])
-    for spans in range(most, 0, -1):
-        knots = extended_knots(curve.knots, p, side, end, spans)
-        # The degree knots next to the old end, taken from the final vector, drive the
-        # unclamping, so the unclamped old part and the extended curve agree on it.
-        new_knots = knots[n_old + 1 : n_old + p + 1] if side == "right" else knots[spans : spans + p]
-        _, _, transform = unclamp(curve.knots, curve.control_points, p, side, new_knots)
-        new_cols = np.arange(n_old, n_old + spans) if side == "right" else np.arange(spans)
-        old_cols = np.arange(n_old) if side == "right" else np.arange(spans, spans + n_old)
-        if not satisfies_schoenberg_whitney(knots, p, distinct, slice(new_cols[0], new_cols[-1] + 1)):
-            continue
-        colloc = collocation_matrix(knots, p, t)
-        g = least_squares_operator(colloc[:, new_cols], max_noise_gain)
-        if g is None:
-            continue
-        psi = np.zeros((n_old + spans, n_old + k))
-        psi[old_cols, :n_old] = transform
-        psi[new_cols, :n_old] = -g @ colloc[:, old_cols] @ transform
-        psi[new_cols, n_old:] = g
-        control = psi @ np.concatenate([curve.control_points, pts])
-        return Extension(BSplineCurve.unchecked(control, knots, p), psi, spans, side, transform)
-    raise FitError(
-        f"no extension with 1..{max(most, 1)} new spans fits these {k} points "
-        "(Schoenberg–Whitney fails for the new control points)")
+    below = most
+    while True:
+        status, spans, knots, transform, colloc_new, colloc_old = extend_kernels.extension_setup(
+            curve.knots, p, right, end, t, distinct, below)
+        if status == extend_kernels.BAD_UNCLAMP:   # unclamp names what is wrong
+            new_knots = knots[n_old + 1 : n_old + p + 1] if right else knots[spans : spans + p]
+            unclamp(curve.knots, curve.control_points, p, side, new_knots)
+        if status != extend_kernels.READY:
+            raise FitError(
+                f"no extension with 1..{max(most, 1)} new spans fits these {k} points "
+                "(Schoenberg–Whitney fails for the new control points)")
+        g = least_squares_operator(colloc_new, max_noise_gain)
+        if g is not None:
+            break
+        below = spans - 1
+    new_rows = slice(n_old, n_old + spans) if right else slice(0, spans)
+    old_rows = slice(0, n_old) if right else slice(spans, spans + n_old)
+    psi = np.zeros((n_old + spans, n_old + k))
+    psi[old_rows, :n_old] = transform
+    psi[new_rows, :n_old] = -g @ colloc_old @ transform
+    psi[new_rows, n_old:] = g
+    control = psi @ np.concatenate([curve.control_points, pts])
+    return Extension(BSplineCurve.unchecked(control, knots, p), psi, spans, side, transform)
