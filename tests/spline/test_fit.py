@@ -277,3 +277,30 @@ def test_a_knot_vector_with_an_empty_end_span_is_left_to_the_search():
     got = fit_curve(pts, 1, float(np.spacing(1.0)) / 4, params=t)
     np.testing.assert_array_equal(got.curve.knots, want[0])
     np.testing.assert_array_equal(got.phi, want[1])
+
+
+@SETTINGS
+@given(n=st.integers(1, 10), seed=st.integers(0, 2**32 - 1), special=st.sampled_from(["none", "nan", "zero", "tie"]))
+def test_rank_test_is_the_numpy_one(n, seed, special):
+    """The compiled rank test (fit_kernels.rank_deficient) decides as the numpy form it
+    replaced, NaN, zero and near-threshold diagonals included."""
+    from bsslam.spline.fit import _RANK_TOLERANCE
+    from bsslam.spline.fit_kernels import rank_deficient
+
+    rng = np.random.default_rng(seed)
+    r = rng.normal(size=(n, n)) * 10.0 ** rng.integers(-12, 3, size=(n, n))
+    i = int(rng.integers(n))
+    if special == "nan":
+        r[i, i] = np.nan
+    elif special == "zero":
+        r[i, i] = -0.0 if rng.random() < 0.5 else 0.0
+    elif special == "tie" and n > 1:
+        j = int(np.abs(r.diagonal()).argmax())
+        r[(j + 1) % n, (j + 1) % n] = -_RANK_TOLERANCE * r[j, j]      # exactly at the threshold
+    diag = np.abs(r.diagonal())
+    assert rank_deficient(r, _RANK_TOLERANCE) == bool(diag.min() <= _RANK_TOLERANCE * diag.max())
+    for row in range(n):                          # every position of the smallest entry
+        s = r.copy()
+        s[row, row] = 1e-300
+        d = np.abs(s.diagonal())
+        assert rank_deficient(s, _RANK_TOLERANCE) == bool(d.min() <= _RANK_TOLERANCE * d.max())

@@ -10,7 +10,7 @@ import numpy as np
 
 from bsslam.config import SLAMConfig
 from bsslam.scan.laser_scan import LaserScan
-from bsslam.scan.segment import beams_to_points, segment_bounds_counted, valid_beams
+from bsslam.scan.segment import beam_points, segment_bounds_counted, valid_beams
 from bsslam.spline import BSplineCurve
 from bsslam.spline.batch import CurveTable, curve_table
 from bsslam.spline.fit import fit_runs
@@ -63,7 +63,8 @@ class ScanFeatures:
     @cached_property
     def control_points(self) -> np.ndarray:
         """(N, 2) the splines' control points stacked in table order (robot frame, m)."""
-        return np.vstack([o.curve.control_points for o in self.splines])
+        # np.vstack of (n_i, 2) arrays, without its wrappers' Python calls
+        return np.concatenate([o.curve.control_points for o in self.splines])
 
 
 def extract_splines(scan: LaserScan, config: SLAMConfig) -> ScanFeatures:
@@ -74,10 +75,10 @@ def extract_splines(scan: LaserScan, config: SLAMConfig) -> ScanFeatures:
     0. A segment that cannot be fitted (``FitError``) is counted, not raised.
     """
     mask, counts = valid_beams(scan, config.segmentation)
-    beam_indices = np.flatnonzero(mask)
+    beam_indices = mask.nonzero()[0]          # np.flatnonzero of the 1-D mask, in one call
     angles = scan.angles[beam_indices]
     ranges = scan.ranges[beam_indices]
-    points = beams_to_points(angles, ranges)
+    points = beam_points(angles, ranges)
     starts, ends, segment_counts = segment_bounds_counted(points, config.segmentation, beam_index=beam_indices)
     counts.update(segment_counts)
     # all segments' fits at once (they share degree and spacing): the same fits as

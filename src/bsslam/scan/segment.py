@@ -78,6 +78,12 @@ def beams_to_points(angles: np.ndarray, ranges: np.ndarray) -> np.ndarray:
     ranges = np.asarray(ranges, dtype=float)
     if angles.shape != ranges.shape or angles.ndim != 1:
         raise InputError(f"angles {angles.shape} and ranges {ranges.shape} must be equal 1-D arrays")
+    return beam_points(angles, ranges)
+
+
+def beam_points(angles: np.ndarray, ranges: np.ndarray) -> np.ndarray:
+    """:func:`beams_to_points` of float64 (m,) angles and ranges, unchecked: for beams of a
+    :class:`~bsslam.scan.laser_scan.LaserScan`, whose arrays are checked when it is made."""
     points = np.empty((angles.shape[0], 2))
     np.multiply(ranges, np.cos(angles), out=points[:, 0])
     np.multiply(ranges, np.sin(angles), out=points[:, 1])
@@ -156,15 +162,15 @@ def segment_bounds_counted(points: np.ndarray, config: SegmentationConfig, *,
         steps = np.arange(m, dtype=float)
     else:
         steps = np.asarray(beam_index, dtype=float)
-        if steps.shape != (m,) or np.any(steps[1:] <= steps[:-1]):
+        if steps.shape != (m,) or np.logical_or.reduce(steps[1:] <= steps[:-1]):
             raise InputError(f"beam_index must be (m,) = ({m},) and strictly increasing")
 
     edges = points[1:] - points[:-1]                     # (m-1, 2): edge k joins points k, k+1
     edge_len = np.hypot(edges[:, 0], edges[:, 1])         # (m-1,)
     gap_cut = edge_len > config.max_gap_m                 # (m-1,)
     path, cut = _shape_cuts(points, edge_len, steps, gap_cut, config, window_m)
-    bounds, shape_cuts, rejected = kept_runs(cut, gap_cut, path, config.min_points, config.min_length_m)
-    counts["gap_cuts"] = int(np.count_nonzero(gap_cut))
+    bounds, gap_cuts, shape_cuts, rejected = kept_runs(cut, gap_cut, path, config.min_points, config.min_length_m)
+    counts["gap_cuts"] = gap_cuts
     counts["shape_cuts"] = shape_cuts
     counts["segments"] = bounds.shape[1]
     counts["rejected_segments"] = rejected
@@ -183,13 +189,15 @@ def _shape_cuts(points: np.ndarray, edge_len: np.ndarray, steps: np.ndarray, gap
     # Window ends ignoring cuts (reach): the last point at least window_m of path behind,
     # the first at least window_m ahead (the neighbours when window_m = 0); the windows
     # are them clipped to the runs between the current cuts.
-    path, reach, window, chord = spacing_setup(points, edge_len, cut, window_m)
+    path, ends, chord = spacing_setup(points, edge_len, cut, window_m)
+    reach, window = ends[:2], ends[2:]
     if m < 3:
         return path, cut
     half = 0.5 * window_m
     spacing_cuts(edge_len, steps, window, np.hypot(chord[0], chord[1]), cut, config.eta, half)
 
-    moments = prefix_moments(points, points.mean(axis=0))
+    # points.mean(axis=0) without its six Python calls: the same sum, divided by the count
+    moments = prefix_moments(points, np.add.reduce(points, axis=0) / m)
     tested = np.empty((3, m), dtype=np.intp)
     angle_args = np.empty((2, 2 * m))
     # each pass adds at least one cut, so at most m-1 passes; usually 1–3

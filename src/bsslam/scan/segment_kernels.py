@@ -61,9 +61,10 @@ def spacing_setup(points, edge_len, cut, window_m):
 
     Returns:
         path: (m,) path length from point 0 (m), the running sum of ``edge_len``.
-        reach: (2, m) int, the last point at least window_m behind each point and the first
-            at least window_m ahead, ignoring cuts (at most i − 1, at least i + 1).
-        window: (2, m) int, ``reach`` clipped to each point's run between the cuts.
+        ends: (4, m) int, rows 0–1 ``reach``: the last point at least window_m behind each
+            point and the first at least window_m ahead, ignoring cuts (at most i − 1, at
+            least i + 1); rows 2–3 ``window``: reach clipped to each point's run between
+            the cuts (one array, not two: each array returned costs a Python call).
         chord: (2, 2(m-1)) the x and y of the chords from ``window[0, k]`` to k (columns
             k) and from k + 1 to ``window[1, k+1]`` (columns m − 1 + k), for ``np.hypot``.
     """
@@ -74,11 +75,11 @@ def spacing_setup(points, edge_len, cut, window_m):
     for k in range(m - 1):
         acc = acc + edge_len[k]
         path[k + 1] = acc
-    reach = np.empty((2, m), dtype=np.intp)
+    ends = np.empty((4, m), dtype=np.intp)
+    reach, window = ends[:2], ends[2:]
     for i in range(m):
         reach[0, i] = min(search_right(path, 0, m, path[i] - window_m) - 1, i - 1)
         reach[1, i] = max(_search_left(path, path[i] + window_m), i + 1)
-    window = np.empty((2, m), dtype=np.intp)
     _clip_windows(reach, cut, window)
     chord = np.empty((2, 2 * (m - 1)))
     for k in range(m - 1):
@@ -87,7 +88,7 @@ def spacing_setup(points, edge_len, cut, window_m):
         chord[1, k] = points[k, 1] - points[lo, 1]
         chord[0, m - 1 + k] = points[hi, 0] - points[k + 1, 0]
         chord[1, m - 1 + k] = points[hi, 1] - points[k + 1, 1]
-    return path, reach, window, chord
+    return path, ends, chord
 
 
 @jit
@@ -257,24 +258,29 @@ def kept_runs(cut, gap_cut, path, min_points, min_length_m):
     of path.
 
     Args:
-        cut: (m-1,) bool, all cuts; gap_cut: (m-1,) bool, the gap cuts among them;
-        path: (m,) path length (m).
+        cut: (m-1,) bool, all cuts; gap_cut: (m-1,) bool, the gap cuts among them (each
+            also in ``cut``); path: (m,) path length (m).
 
     Returns:
-        bounds: (2, k) int, first and last point of each kept run; shape_cuts: cuts that
-        are not gap cuts; rejected: runs dropped.
+        bounds: (2, k) int, first and last point of each kept run; gap_cuts: the gap cuts
+        (counted here rather than by np.count_nonzero, three Python calls a scan);
+        shape_cuts: cuts that are not gap cuts; rejected: runs dropped.
     """
     m = path.shape[0]
     bounds = np.empty((2, m), dtype=np.intp)
     k = 0
     rejected = 0
+    gap_cuts = 0
     shape_cuts = 0
     start = 0
     for e in range(m):
         if e < m - 1 and not cut[e]:
             continue
-        if e < m - 1 and not gap_cut[e]:
-            shape_cuts += 1
+        if e < m - 1:
+            if gap_cut[e]:
+                gap_cuts += 1
+            else:
+                shape_cuts += 1
         if e - start + 1 >= min_points and path[e] - path[start] >= min_length_m:
             bounds[0, k] = start
             bounds[1, k] = e
@@ -282,7 +288,7 @@ def kept_runs(cut, gap_cut, path, min_points, min_length_m):
         else:
             rejected += 1
         start = e + 1
-    return bounds[:, :k], shape_cuts, rejected
+    return bounds[:, :k], gap_cuts, shape_cuts, rejected
 
 
 @jit

@@ -33,7 +33,6 @@ acceptance tests); results agree with them up to rounding.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -41,7 +40,6 @@ import numpy as np
 
 from bsslam.errors import SplineError
 from bsslam.spline import kernels
-from bsslam.spline.basis import basis_functions
 from bsslam.spline.closest import MAX_SAMPLES_PER_SPAN
 from bsslam.spline.closest import _MAX_NEWTON as _CLOSEST_MAX_NEWTON
 from bsslam.spline.closest import _STEP_TOLERANCE as _CLOSEST_STEP_TOLERANCE
@@ -205,45 +203,34 @@ def curve_table(knots: list[np.ndarray], degrees: list[int] | np.ndarray) -> Cur
             control points.
         degrees: (C,) polynomial degrees.
     """
-    degrees = np.asarray(degrees, dtype=np.intp).reshape(-1)
-    if degrees.shape[0] != len(knots) or not knots:
-        raise SplineError("curve_table needs one degree per knot vector, and at least one curve")
-    p = int(degrees.max())
+    # Built for every scan's observed splines and every spline the map gains: the whole
+    # table is one compiled call (kernels.curve_table_arrays), its 1-D fields packed by
+    # dtype because each array a compiled function returns costs a Python call.
+    degrees = np.array(degrees, dtype=np.intp, ndmin=1)
     n_knots = np.array([k.shape[0] for k in knots], dtype=np.intp)
-    K = np.concatenate(knots).astype(float, copy=False)
+    if degrees.shape != n_knots.shape or not knots:
+        raise SplineError("curve_table needs one degree per knot vector, and at least one curve")
     # Spans degree … n_cp − 1 of each curve cover its domain; the non-empty ones are its pieces.
-    (ok, cp_start, piece_start, lo, hi, span, owner, piece_lo, width, window, real, breaks,
-     break_start) = kernels.table_layout(K, n_knots, degrees, p)
+    ok, ints, floats, keys, window, real, power_basis = kernels.curve_table_arrays(
+        np.concatenate(knots, dtype=float), n_knots, degrees)
     if not ok:
         raise SplineError("every curve needs a non-empty domain")
+    C, S = n_knots.shape[0], window.shape[0]
+    return _new_table(degree=degrees, p=window.shape[1] - 1, cp_start=ints[: C + 1],
+                      piece_start=ints[C + 1: 2 * C + 2], lo=floats[:C], hi=floats[C: 2 * C],
+                      piece_lo=floats[2 * C: 2 * C + S], width=floats[2 * C + S:],
+                      piece_curve=ints[3 * C + 3: 3 * C + 3 + S], window=window, real=real,
+                      power_basis=power_basis, keys=keys[: S + C], break_start=ints[2 * C + 2: 3 * C + 3],
+                      piece_keys=keys[S + C:], last_piece=ints[3 * C + 3 + S:])
 
-    S = span.shape[0]
-    factorials = np.array([math.factorial(k) for k in range(p + 1)], dtype=float)
-    r = np.arange(p + 1)
-    if degrees.min() == p:          # the usual case: one degree, no padding
-        # Derivatives of the p + 1 basis functions at each piece's start; the span is
-        # given, so the global knot array serves every curve at once.
-        _, values = basis_functions(K, p, piece_lo, p, span=span)             # (p+1, S, p+1)
-        power_basis = np.empty((S, p + 1, p + 1))
-        np.divide(values.transpose(1, 0, 2), factorials[None, :, None], out=power_basis)
-    else:
-        power_basis = np.zeros((S, p + 1, p + 1))
-        for d in np.unique(degrees):
-            sel = np.flatnonzero(degrees[owner] == d)
-            d = int(d)
-            _, values = basis_functions(K, d, piece_lo[sel], d, span=span[sel])   # (d+1, s, d+1)
-            power_basis[sel[:, None, None], r[None, : d + 1, None], r[None, None, : d + 1]] = (
-                values.transpose(1, 0, 2) / factorials[None, : d + 1, None])
 
-    C = len(knots)
-    last = piece_start[1:] - 1
-    keys = np.repeat(np.arange(C), np.diff(break_start)) + 1j * breaks
-    table = CurveTable(degree=degrees, p=p, cp_start=cp_start, piece_start=piece_start, lo=lo, hi=hi,
-                       piece_lo=piece_lo, width=width, piece_curve=owner, window=window, real=real,
-                       power_basis=power_basis, keys=keys, break_start=break_start)
-    # the searches' keys, computed here once rather than on first use
-    object.__setattr__(table, "piece_keys", owner + 1j * piece_lo)
-    object.__setattr__(table, "last_piece", last)
+def _new_table(**fields: object) -> CurveTable:
+    """A :class:`CurveTable` of the given fields, and of its cached ``piece_keys`` and
+    ``last_piece`` (computed once where the table is made, not on first use), written
+    straight into the instance: the frozen dataclass's __init__ sets its fourteen fields
+    one ``object.__setattr__`` at a time, a quarter of the cost of an observed table."""
+    table = object.__new__(CurveTable)
+    table.__dict__.update(fields)
     return table
 
 
@@ -253,7 +240,7 @@ def concat_tables(a: CurveTable, b: CurveTable) -> CurveTable:
     if a.p != b.p:
         raise SplineError(f"cannot concatenate tables of padded degrees {a.p} and {b.p}")
     C, N, S = a.n_curves, int(a.cp_start[-1]), a.piece_lo.shape[0]
-    table = CurveTable(
+    return _new_table(
         degree=np.concatenate([a.degree, b.degree]), p=a.p,
         cp_start=np.concatenate([a.cp_start, b.cp_start[1:] + N]),
         piece_start=np.concatenate([a.piece_start, b.piece_start[1:] + S]),
@@ -263,10 +250,9 @@ def concat_tables(a: CurveTable, b: CurveTable) -> CurveTable:
         window=np.concatenate([a.window, b.window + N]), real=np.concatenate([a.real, b.real]),
         power_basis=np.concatenate([a.power_basis, b.power_basis]),
         keys=np.concatenate([a.keys, b.keys + C]),
-        break_start=np.concatenate([a.break_start, b.break_start[1:] + a.keys.shape[0]]))
-    object.__setattr__(table, "piece_keys", np.concatenate([a.piece_keys, b.piece_keys + C]))
-    object.__setattr__(table, "last_piece", np.concatenate([a.last_piece, b.last_piece + S]))
-    return table
+        break_start=np.concatenate([a.break_start, b.break_start[1:] + a.keys.shape[0]]),
+        piece_keys=np.concatenate([a.piece_keys, b.piece_keys + C]),
+        last_piece=np.concatenate([a.last_piece, b.last_piece + S]))
 
 
 def kept_rows(start: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -294,15 +280,12 @@ def take_curves(table: CurveTable, keep: np.ndarray) -> CurveTable:
     piece_lo = table.piece_lo[pieces]
     # a piece's window rows move with its curve's first control point
     shift = (cp_start[:-1] - table.cp_start[keep])[owner]
-    out = CurveTable(degree=table.degree[keep], p=table.p, cp_start=cp_start, piece_start=piece_start,
-                     lo=table.lo[keep], hi=table.hi[keep], piece_lo=piece_lo, width=table.width[pieces],
-                     piece_curve=owner, window=table.window[pieces] + shift[:, None], real=table.real[pieces],
-                     power_basis=table.power_basis[pieces],
-                     keys=np.repeat(np.arange(C), n_breaks) + 1j * table.keys.imag[breaks],
-                     break_start=break_start)
-    object.__setattr__(out, "piece_keys", owner + 1j * piece_lo)
-    object.__setattr__(out, "last_piece", piece_start[1:] - 1)
-    return out
+    return _new_table(degree=table.degree[keep], p=table.p, cp_start=cp_start, piece_start=piece_start,
+                      lo=table.lo[keep], hi=table.hi[keep], piece_lo=piece_lo, width=table.width[pieces],
+                      piece_curve=owner, window=table.window[pieces] + shift[:, None], real=table.real[pieces],
+                      power_basis=table.power_basis[pieces],
+                      keys=np.repeat(np.arange(C), n_breaks) + 1j * table.keys.imag[breaks],
+                      break_start=break_start, piece_keys=owner + 1j * piece_lo, last_piece=piece_start[1:] - 1)
 
 
 def _search(keys: np.ndarray, curve: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -12,10 +12,15 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
+try:  # numpy ≥ 2
+    from numpy._core.multiarray import c_einsum as _c_einsum
+except ImportError:  # pragma: no cover - numpy 1.26
+    from numpy.core.multiarray import c_einsum as _c_einsum
+
 from bsslam.errors import FitError, SplineError
 from bsslam.spline.basis import basis_functions, collocation_matrix
 from bsslam.spline.curve import BSplineCurve, as_points
-from bsslam.spline.fit_kernels import fit_setup, next_fit_setup, run_parameters, span_survivors
+from bsslam.spline.fit_kernels import fit_setup, next_fit_setup, rank_deficient, run_parameters, span_survivors
 from bsslam.spline.knots import check_degree, clamped_knots_with_spans, span_count
 
 # Relative size of R's smallest diagonal entry (QR of the collocation matrix) below which
@@ -130,11 +135,13 @@ def least_squares_operator(collocation: np.ndarray, max_noise_gain: float | None
     if m < n:
         return None
     q, r = _qr_reduced(collocation)
-    diag = np.abs(r.diagonal())
-    if diag.min() <= _RANK_TOLERANCE * diag.max():
+    if rank_deficient(r, _RANK_TOLERANCE):
         return None
     phi = _solve_upper(r, q.T)
-    if max_noise_gain is not None and np.einsum("ij,ij->i", phi, phi).max() > max_noise_gain ** 2:
+    # the squared row norms by einsum's own C function (np.einsum without optimize calls
+    # it, after a dispatch costing six Python calls a fit), their maximum by the reduction
+    # ndarray.max calls
+    if max_noise_gain is not None and np.maximum.reduce(_c_einsum("ij,ij->i", phi, phi)) > max_noise_gain ** 2:
         return None
     return phi
 

@@ -18,6 +18,8 @@ Binary searches reproduce ``np.searchsorted`` on sorted finite arrays.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from bsslam.compiled import jit
@@ -332,3 +334,21 @@ def next_fit_setup(t, distinct, multiplicity, most, below, p, screen, limit, few
         if status != 1:
             return spans, status, knots, collocation
     return 0, 1, np.zeros(0), np.zeros((0, 0))
+
+
+@jit
+def rank_deficient(r, tolerance):
+    """Whether R's smallest diagonal magnitude is at most ``tolerance`` times its largest:
+    ``diag = np.abs(r.diagonal()); diag.min() <= tolerance * diag.max()`` of an (n, n) r,
+    n ≥ 1, in one call instead of eight (a min or max does not round; a NaN on the
+    diagonal makes both NaN, and the comparison False, as in numpy)."""
+    lo = hi = abs(r[0, 0])
+    for i in range(min(r.shape[0], r.shape[1])):
+        v = abs(r[i, i])
+        if math.isnan(v):
+            return False
+        if v < lo:
+            lo = v
+        if v > hi:
+            hi = v
+    return lo <= tolerance * hi

@@ -498,25 +498,40 @@ def basis_derivatives(knots, degree, t, span, nder):
 
 
 @jit
-def table_layout(K, n_knots, degrees, p):
-    """The index bookkeeping of :func:`bsslam.spline.batch.curve_table` in one loop over the
-    curves: C curves with knot vectors stacked in K (n_knots (C,) each) and degrees (C,),
-    padded to degree p. Returns ``(ok, cp_start, piece_start, lo, hi, span, owner, piece_lo,
-    width, window, real, breaks, break_start)`` as the table's fields of those names (span:
-    each piece's global knot span in K; owner: the table's ``piece_curve``); ok is False
-    when a curve has no non-empty span (the other outputs are then meaningless)."""
+def curve_table_arrays(K, n_knots, degrees):
+    """All the arrays of :func:`bsslam.spline.batch.curve_table` in one call: C curves with
+    knot vectors stacked in K (n_knots (C,) each) and degrees (C,), padded to the largest
+    degree p. Each array a compiled function returns costs its caller a Python call, so
+    the 1-D fields come packed by dtype and the caller slices them apart.
+
+    Returns ``(ok, ints, floats, keys, window, real, power_basis)``:
+
+    * ints (intp): ``cp_start (C+1) | piece_start (C+1) | break_start (C+1) |
+      piece_curve (S) | last_piece (C)``;
+    * floats: ``lo (C) | hi (C) | piece_lo (S) | width (S)``;
+    * keys (complex): ``keys (S+C) | piece_keys (S)``, each ``curve + 1j·break`` with the
+      operations numpy does for that sum (complex product (0 + 1j)·(x + 0j), then the sum);
+    * window (S, p+1), real (S, p+1), power_basis (S, p+1, p+1): the table's fields;
+
+    ok is False when a curve has no non-empty span (the other outputs are then
+    meaningless). power_basis[s, k] is the k-th derivative of the basis functions of the
+    piece's own degree at its start (:func:`basis_derivatives`, the curves of one degree
+    in one call) divided by k!, as a float division by ``float(math.factorial(k))``: the
+    running float product below is that number exactly up to 27!.
+    """
     C = n_knots.shape[0]
-    cp_start = np.zeros(C + 1, dtype=np.intp)
-    piece_start = np.zeros(C + 1, dtype=np.intp)
-    break_start = np.zeros(C + 1, dtype=np.intp)
-    lo = np.empty(C)
-    hi = np.empty(C)
+    p = 0
+    for c in range(C):
+        p = max(p, degrees[c])
     total = 0
     for c in range(C):
         total += max(n_knots[c] - 2 * degrees[c] - 1, 0)   # spans degree … n_cp − 1: an upper bound
     span = np.empty(total, dtype=np.intp)
-    owner = np.empty(total, dtype=np.intp)
     local = np.empty(total, dtype=np.intp)
+    owner = np.empty(total, dtype=np.intp)
+    cp_start = np.zeros(C + 1, dtype=np.intp)
+    piece_start = np.zeros(C + 1, dtype=np.intp)
+    break_start = np.zeros(C + 1, dtype=np.intp)
     S = 0
     k0 = 0
     ok = True
@@ -524,8 +539,6 @@ def table_layout(K, n_knots, degrees, p):
         d = degrees[c]
         n_cp = n_knots[c] - d - 1
         cp_start[c + 1] = cp_start[c] + n_cp
-        lo[c] = K[k0 + d]
-        hi[c] = K[k0 + n_cp]
         first = S
         for j in range(d, n_cp):                      # the non-empty spans are the pieces
             if K[k0 + j] < K[k0 + j + 1]:
@@ -538,9 +551,21 @@ def table_layout(K, n_knots, degrees, p):
         piece_start[c + 1] = S
         break_start[c + 1] = break_start[c] + (S - first) + 1
         k0 += n_knots[c]
-    span, owner, local = span[:S], owner[:S], local[:S]
-    piece_lo = np.empty(S)
-    width = np.empty(S)
+    ints = np.empty(3 * (C + 1) + S + C, dtype=np.intp)
+    ints[: C + 1] = cp_start
+    ints[C + 1: 2 * (C + 1)] = piece_start
+    ints[2 * (C + 1): 3 * (C + 1)] = break_start
+    ints[3 * (C + 1): 3 * (C + 1) + S] = owner[:S]
+    for c in range(C):
+        ints[3 * (C + 1) + S + c] = piece_start[c + 1] - 1
+    floats = np.empty(2 * C + 2 * S)
+    k0 = 0
+    for c in range(C):
+        floats[c] = K[k0 + degrees[c]]                           # lo
+        floats[C + c] = K[k0 + n_knots[c] - degrees[c] - 1]      # hi
+        k0 += n_knots[c]
+    piece_lo = floats[2 * C: 2 * C + S]
+    width = floats[2 * C + S:]
     window = np.empty((S, p + 1), dtype=np.intp)
     real = np.zeros((S, p + 1), dtype=np.bool_)
     breaks = np.empty(S + C)
@@ -558,4 +583,34 @@ def table_layout(K, n_knots, degrees, p):
         if piece_start[c + 1] > piece_start[c]:
             last = piece_start[c + 1] - 1
             breaks[last + c + 1] = piece_lo[last] + width[last]
-    return ok, cp_start, piece_start, lo, hi, span, owner, piece_lo, width, window, real, breaks, break_start
+    keys = np.empty(2 * S + C, dtype=np.complex128)
+    for c in range(C):
+        for i in range(break_start[c], break_start[c + 1]):
+            x = breaks[i]
+            keys[i] = complex(c + (0.0 * x - 0.0), 0.0 + (0.0 + x))
+    for s in range(S):
+        x = piece_lo[s]
+        keys[S + C + s] = complex(owner[s] + (0.0 * x - 0.0), 0.0 + (0.0 + x))
+    power_basis = np.zeros((S, p + 1, p + 1))
+    if not ok:
+        return ok, ints, floats, keys, window, real, power_basis
+    factorials = np.empty(p + 1)
+    factorials[0] = 1.0
+    for k in range(1, p + 1):
+        factorials[k] = factorials[k - 1] * k
+    for d in range(p + 1):
+        sel = np.empty(S, dtype=np.intp)
+        n = 0
+        for s in range(S):
+            if degrees[owner[s]] == d:
+                sel[n] = s
+                n += 1
+        if n == 0:
+            continue
+        sel = sel[:n]
+        values = basis_derivatives(K, d, piece_lo[sel], span[sel], d)   # (d+1, n, d+1)
+        for i in range(n):
+            for k in range(d + 1):
+                for r in range(d + 1):
+                    power_basis[sel[i], k, r] = values[k, i, r] / factorials[k]
+    return ok, ints, floats, keys, window, real, power_basis
