@@ -12,10 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-try:  # numpy ≥ 2
+try:  # numpy ≥ 2: the C function np.einsum calls (without optimize) after its dispatch
     from numpy._core.multiarray import c_einsum as _c_einsum
-except ImportError:  # pragma: no cover - numpy 1.26
-    from numpy.core.multiarray import c_einsum as _c_einsum
+except ImportError:  # pragma: no cover - numpy 1.26, or a numpy that moved it: the same numbers
+    _c_einsum = np.einsum
 
 from bsslam.errors import FitError, SplineError
 from bsslam.spline.basis import basis_functions, collocation_matrix
