@@ -17,20 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from bsslam.compiled import jit
-from bsslam.spline.kernels import search_right
-
-
-@jit
-def _search_left(a, v):
-    """``np.searchsorted(a, v, side="left")`` of a sorted (k,) a."""
-    lo, hi = 0, a.shape[0]
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if a[mid] < v:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
+from bsslam.spline.kernels import search_left, search_right
 
 
 @jit
@@ -79,7 +66,7 @@ def spacing_setup(points, edge_len, cut, window_m):
     reach, window = ends[:2], ends[2:]
     for i in range(m):
         reach[0, i] = min(search_right(path, 0, m, path[i] - window_m) - 1, i - 1)
-        reach[1, i] = max(_search_left(path, path[i] + window_m), i + 1)
+        reach[1, i] = max(search_left(path, 0, m, path[i] + window_m), i + 1)
     _clip_windows(reach, cut, window)
     chord = np.empty((2, 2 * (m - 1)))
     for k in range(m - 1):

@@ -17,7 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 from bsslam.compiled import jit
-from bsslam.spline.fit_kernels import _basis_row, _search_left, _search_right
+from bsslam.spline.fit_kernels import basis_row
+from bsslam.spline.kernels import search_left, search_right
 
 # extension_setup's status
 READY, NO_SPANS, BAD_UNCLAMP = 0, 1, 2
@@ -106,8 +107,8 @@ def unclamp_transform(u, p, right, new):
 def _domain_spans(knots, p):
     """The first and last non-empty spans of the domain, as ``basis.find_span`` clips to."""
     n_control = knots.shape[0] - p - 1
-    first = _search_right(knots, knots[p]) - 1
-    last = _search_left(knots, knots[n_control]) - 1
+    first = search_right(knots, 0, knots.shape[0], knots[p]) - 1
+    last = search_left(knots, 0, knots.shape[0], knots[n_control]) - 1
     return first, last
 
 
@@ -115,7 +116,7 @@ def _domain_spans(knots, p):
 def _span_of(knots, p, first, last, t):
     """``basis.find_span`` of one parameter: the last knot at or before t, clipped to the
     domain's spans."""
-    return min(max(_search_right(knots, t) - 1, first), last)
+    return min(max(search_right(knots, 0, knots.shape[0], t) - 1, first), last)
 
 
 @jit
@@ -141,7 +142,7 @@ def schoenberg_whitney(knots, p, distinct, c0, c1):
     left, right, temp, beta = np.empty(p), np.empty(p), np.empty(p), np.empty(p + 1)
     for r in range(d):
         span = _span_of(knots, p, lo_span, hi_span, distinct[r])
-        _basis_row(knots, p, _clamped(knots, p, distinct[r]), span, left, right, temp, beta)
+        basis_row(knots, p, _clamped(knots, p, distinct[r]), span, left, right, temp, beta)
         for q in range(p + 1):
             if beta[q] > 0:
                 b = span - p + q
@@ -173,7 +174,7 @@ def split_collocation(knots, p, t, c0, c1):
     left, right, temp, beta = np.empty(p), np.empty(p), np.empty(p), np.empty(p + 1)
     for j in range(m):
         span = _span_of(knots, p, lo_span, hi_span, t[j])
-        _basis_row(knots, p, _clamped(knots, p, t[j]), span, left, right, temp, beta)
+        basis_row(knots, p, _clamped(knots, p, t[j]), span, left, right, temp, beta)
         for q in range(p + 1):
             col = span - p + q
             if col < c0:

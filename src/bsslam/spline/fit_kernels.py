@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from bsslam.compiled import jit
-from bsslam.spline.kernels import search_right
+from bsslam.spline.kernels import search_left, search_right
 
 
 @jit
@@ -37,14 +37,7 @@ def _search_right(a, v):
 def _search_left(a, v):
     """``np.searchsorted(a, v, side="left")`` of a sorted (k,) a: the first index whose
     value is at least v (k if none)."""
-    lo, hi = 0, a.shape[0]
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if a[mid] < v:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
+    return search_left(a, 0, a.shape[0], v)
 
 
 @jit
@@ -55,7 +48,7 @@ def _span(knots, p, n, t):
 
 
 @jit
-def _basis_row(knots, p, t, span, left, right, temp, out):
+def basis_row(knots, p, t, span, left, right, temp, out):
     """The p + 1 non-zero basis values at t on ``span`` into ``out`` (p+1,): the operations
     of :func:`bsslam.spline.basis._basis_values` (Piegl & Tiller A2.2) for one parameter.
     ``left``, ``right`` (p,) and ``temp`` (p,) are scratch."""
@@ -152,7 +145,7 @@ def fit_setup(t, distinct, spans, p):
     left, right, temp, beta = np.empty(p), np.empty(p), np.empty(p), np.empty(p + 1)
     for j in range(m):
         span = _span(knots, p, n, t[j])
-        _basis_row(knots, p, t[j], span, left, right, temp, beta)
+        basis_row(knots, p, t[j], span, left, right, temp, beta)
         for r in range(p + 1):
             collocation[j, span - p + r] = beta[r]
     return 0, knots, collocation
@@ -229,7 +222,7 @@ def _survives(distinct, multiplicity, spans, p, by_basis, screen, limit, few_dat
         for j in range(d):
             span = _span(knots, p, n, distinct[j])
             spans_at[j] = span
-            _basis_row(knots, p, distinct[j], span, left, right, temp, beta[j])
+            basis_row(knots, p, distinct[j], span, left, right, temp, beta[j])
             for r in range(p + 1):
                 if beta[j, r] > 0:
                     first[span - p + r] = min(first[span - p + r], j)
@@ -264,7 +257,7 @@ def _survives(distinct, multiplicity, spans, p, by_basis, screen, limit, few_dat
             continue
         if not by_basis:
             spans_at[j] = _span(knots, p, n, distinct[j])
-            _basis_row(knots, p, distinct[j], spans_at[j], left, right, temp, beta[j])
+            basis_row(knots, p, distinct[j], spans_at[j], left, right, temp, beta[j])
         c0 = spans_at[j] - p
         for ri in range(p + 1):
             wb = multiplicity[j] * beta[j, ri]

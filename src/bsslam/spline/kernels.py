@@ -39,6 +39,19 @@ def search_right(a, lo, hi, v):
 
 
 @jit
+def search_left(a, lo, hi, v):
+    """``lo + np.searchsorted(a[lo:hi], v, side="left")`` for a sorted run a[lo:hi]: the
+    first index of the run whose value is at least v (hi if none)."""
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if a[mid] < v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@jit
 def _piece_of(piece_lo, first, last, t):
     """Global index of the piece of a curve (pieces first … last) holding t: the last piece
     starting at or before t (t inside the curve's domain), as numpy's
