@@ -4,26 +4,10 @@ must match bit for bit."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
+from bsslam.slam.enlarge import BeamPoints, LinearBlock
 from bsslam.slam.observation import laser_pose
-
-
-@dataclass(frozen=True)
-class BeamPoints:
-    """World points of k beams and their derivatives.
-
-    Attributes:
-        points: (k, 2) world points (m).
-        d_dpose: (2, k, 3) ∂(x, y) of each point w.r.t. the robot pose.
-        d_drange: (2, k) ∂(x, y) of each point w.r.t. its own range (cos μ, sin μ).
-    """
-
-    points: np.ndarray
-    d_dpose: np.ndarray
-    d_drange: np.ndarray
 
 
 def beam_points(robot_pose: np.ndarray, laser_offset: np.ndarray, bearings: np.ndarray,
@@ -42,29 +26,6 @@ def beam_points(robot_pose: np.ndarray, laser_offset: np.ndarray, bearings: np.n
     d_dpose[0, :, 2] = -s * ox - c * oy - ranges * sm
     d_dpose[1, :, 2] = c * ox - s * oy + ranges * cm
     return BeamPoints(points, d_dpose, np.vstack([cm, sm]))
-
-
-@dataclass(frozen=True)
-class LinearBlock:
-    """New state entries ``v = J · x[cols] + (terms in the ranges)``, linearised.
-
-    Attributes:
-        mean: (q,) the new entries' values.
-        cols: (c,) state indices they depend on.
-        J: (q, c) Jacobian w.r.t. ``x[cols]``.
-        G_z: (q, k) Jacobian w.r.t. the k ranges.
-    """
-
-    mean: np.ndarray
-    cols: np.ndarray
-    J: np.ndarray
-    G_z: np.ndarray
-
-    def noise(self, range_variance: float) -> np.ndarray:
-        """(q, q) the ranges' share of the new entries' covariance, R G_z G_zᵀ (m²); the
-        rest, J P[cols, cols] Jᵀ and the cross terms J P[cols, :], are the state's
-        (:meth:`JointState.append_dependent`)."""
-        return range_variance * (self.G_z @ self.G_z.T)
 
 
 def stacked_map(A: np.ndarray, bp: BeamPoints) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
