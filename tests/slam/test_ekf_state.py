@@ -84,6 +84,26 @@ def test_a_gain_on_working_rows_corrects_them_and_the_whole_state_like_the_dense
         CovarianceColumns(state, np.array([1, 2, 3]))
 
 
+@pytest.mark.parametrize("m", [3, 40])
+def test_the_update_checks_the_pose_variances_it_leaves(m):
+    """The update's check of the pose's variances uses the gain's numbers: they are the
+    posterior's; a gain that takes off more than the prior holds is refused."""
+    from bsslam.errors import FilterError
+
+    rng = np.random.default_rng(6)
+    n, R = 30, 0.01 ** 2
+    state, P0, H_c, H = dense_problem(rng, n, m, COLS)
+    gain = StackedGain(state.P, COLS, H_c, R)
+    expected = np.diag(P0)[:3] - gain._pose_variance_drop()
+    gain.update_covariance(state)
+    np.testing.assert_allclose(np.diag(state.pose_covariance), expected, atol=1e-12)
+    state, P0, H_c, H = dense_problem(rng, n, m, COLS)
+    broken = StackedGain(state.P, COLS, H_c, R)
+    broken.Y = broken.Y * 10.0          # a hundred times the information the beams carry
+    with pytest.raises(FilterError, match="lost positive definiteness"):
+        broken.update_covariance(state)
+
+
 def test_gate_variances_prior_and_posterior_equal_dense_formulas():
     """The filter gates at the prior with diag(H P Hᵀ) + R and at the corrected estimate with
     diag(H' P⁺ H'ᵀ) + R, for a relinearised H' on other columns."""

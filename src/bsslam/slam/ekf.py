@@ -152,8 +152,12 @@ class StackedGain:
     def pose_variances(self, prior: np.ndarray) -> np.ndarray:
         """(3,) posterior variances of the pose under this gain, from its ``prior`` (3,)
         variances: diag(P_pp − P_pc Hᵀ S⁻¹ H P_cp) (m², m², rad²); clipped at 0."""
+        return np.maximum(prior - self._pose_variance_drop(), 0.0)
+
+    def _pose_variance_drop(self) -> np.ndarray:
+        """(3,) diag(P_pc Hᵀ S⁻¹ H P_cp): what this gain takes off the pose's variances."""
         Z = self.Y @ self.P_c[:3].T          # (m, 3)
-        return np.maximum(prior - np.einsum("ij,ij->j", Z, Z), 0.0)
+        return np.einsum("ij,ij->j", Z, Z)
 
     def posterior_variances(self, P: np.ndarray | CovarianceColumns, cols: np.ndarray, H_c: np.ndarray,
                             range_variance: float) -> np.ndarray:
@@ -169,13 +173,21 @@ class StackedGain:
     def update_covariance(self, state: JointState) -> None:
         """P ← P − P Hᵀ S⁻¹ H P, as P − Z Zᵀ with the smaller of the two possible ranks,
         handed to ``state`` (which defers it, see :class:`JointState`)."""
+        # The pose's variances after the update, checked below, from the gain's own numbers
+        # when its columns start with the pose (always, in the filter): read from the state
+        # they would cost a fresh read of its deferred term, which the next prediction drops.
+        pose_first = np.array_equal(self.cols[:3], POSE)
+        if pose_first:
+            pose_var = self.P_c[POSE, POSE] - self._pose_variance_drop()
         Y = self.Y
         if Y.shape[0] > Y.shape[1]:
             qr_, _, _, _ = dgeqrf(Y)                   # YᵀY = R_yᵀ R_y
             Y = np.triu(qr_[: Y.shape[1]])
         state.subtract_column_update(self.cols, Y.T)   # Z = P_c Yᵀ
+        if not pose_first:
+            pose_var = np.diag(state.pose_covariance)
         # exactly known components (zero variance, e.g. a fixed start) stay 0; negative is broken
-        if np.any(np.diag(state.pose_covariance) < -1e-12):
+        if np.any(pose_var < -1e-12):
             raise FilterError("pose covariance lost positive definiteness in the update")
 
 
