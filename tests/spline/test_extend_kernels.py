@@ -114,10 +114,3 @@ def test_schoenberg_whitney_and_collocation_match_the_numpy_forms(kv, seed, m, l
         cols = np.arange(c0, c1)
         _same(inside, full[:, cols])
         _same(outside, full[:, np.setdiff1d(np.arange(n), cols)])
-
-
-@SETTINGS
-@given(values=st.lists(st.sampled_from([-2.0, -1.5, 0.0, 0.25, 1.0, 3.5, 7.0]), min_size=1, max_size=30))
-def test_sorted_distinct_is_unique(values):
-    t = np.array(values)
-    _same(kern.sorted_distinct(t), np.unique(t))

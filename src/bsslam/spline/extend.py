@@ -130,7 +130,7 @@ def extend_curve(curve: BSplineCurve, side: str, points: object, params: object,
         raise FitError("no data points to extend the curve with")
     lo, hi = curve.domain
     right = side == "right"
-    distinct = extend_kernels.sorted_distinct(t)
+    distinct = np.unique(t)
     if right and not distinct[0] > hi:
         raise SplineError(f"right extension parameters must all be > the domain end {hi}")
     if not right and not distinct[-1] < lo:

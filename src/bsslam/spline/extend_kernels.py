@@ -220,15 +220,3 @@ def extension_setup(knots, p, right, end, t, distinct, below):
         inside, outside = split_collocation(ext, p, t, c0, c0 + spans)
         return READY, spans, ext, transform, inside, outside
     return NO_SPANS, 0, np.zeros(0), empty, empty_f, empty_f
-
-
-@jit
-def sorted_distinct(t):
-    """(d,) the distinct values of finite (k,) t, ascending (``np.unique``)."""
-    s = np.sort(t)
-    keep = 1
-    for i in range(1, s.shape[0]):
-        if s[i] != s[keep - 1]:
-            s[keep] = s[i]
-            keep += 1
-    return s[:keep].copy()
