@@ -146,3 +146,29 @@ def test_evaluate_json_on_a_shifted_copy(tmp_path):
     out = invoke("evaluate", tmp_path / "est.txt", tmp_path / "ref.txt", "--json").output
     metrics = json.loads(out)
     assert metrics["ate_m"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_a_machines_first_run_says_it_compiles_first(tmp_path, monkeypatch):
+    import bsslam.cli as cli
+    import bsslam.compiled as compiled
+
+    monkeypatch.setattr(cli, "_compile_hint_shown", False)
+    monkeypatch.setattr(compiled, "needs_compiling", lambda: True)
+    first = invoke("simulate", "--world", "mixed", "--steps", 3, "--out", tmp_path / "a").output
+    assert "compiling the inner loops" in first
+    monkeypatch.setattr(cli, "_compile_hint_shown", False)
+    monkeypatch.setattr(compiled, "needs_compiling", lambda: False)
+    assert "compiling" not in invoke("simulate", "--world", "mixed", "--steps", 3, "--out", tmp_path / "b").output
+
+
+def test_the_compile_check_finds_this_machines_cache(monkeypatch, tmp_path):
+    """After the filter has run (the tests above compiled it), the cache index is there; an
+    empty NUMBA_CACHE_DIR has none."""
+    from bsslam.compiled import needs_compiling
+    from bsslam.slam.range_kernels import linearize_beams
+
+    invoke("simulate", "--world", "mixed", "--steps", 3, "--out", tmp_path)
+    assert not needs_compiling()
+    cache_file = linearize_beams._cache._cache_file
+    monkeypatch.setattr(cache_file, "_index_path", str(tmp_path / "missing.nbi"))
+    assert needs_compiling()

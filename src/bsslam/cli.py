@@ -26,9 +26,21 @@ console = Console(stderr=True)
 OUT_HELP = "Results folder: files go to DIR/<timestamp>/ and DIR/latest points at them."
 
 
+_compile_hint_shown = False
+
+
 @contextlib.contextmanager
 def progress_bar(description: str, total: int | None, unit: str = "") -> Iterator:
-    """A rich progress bar; yields ``update(done, total)`` for library callbacks."""
+    """A rich progress bar; yields ``update(done, total)`` for library callbacks. Before the
+    first bar of a machine's first run, says why it will wait at the start."""
+    global _compile_hint_shown
+    if not _compile_hint_shown:
+        _compile_hint_shown = True
+        from bsslam.compiled import needs_compiling
+
+        if needs_compiling():
+            console.print("[dim]first run on this machine: compiling the inner loops "
+                          "(about a minute; cached for the next runs)[/dim]")
     columns = [TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                TextColumn("{task.fields[rate]}"), TimeElapsedColumn(), TimeRemainingColumn()]
     with Progress(*columns, console=console) as bar:

@@ -16,6 +16,20 @@ those calls. The options are chosen so that a compiled loop gives numpy's number
 
 from __future__ import annotations
 
+import os
+
 from numba import njit
 
 jit = njit(cache=True, nogil=True, error_model="numpy")
+
+
+def needs_compiling() -> bool:
+    """Whether this machine has yet to compile the filter's loops (one of them has no cache
+    index: nothing was compiled here, or ``NUMBA_CACHE_DIR`` points somewhere new), so the
+    first scans will wait for the compiler. A hint for the command line: False when it
+    cannot tell (the index's path is numba's internal)."""
+    try:
+        from bsslam.slam.range_kernels import linearize_beams
+        return not os.path.exists(linearize_beams._cache._cache_file._index_path)
+    except (AttributeError, ImportError):
+        return False
