@@ -153,11 +153,11 @@ def test_a_machines_first_run_says_it_compiles_first(tmp_path, monkeypatch):
     import bsslam.compiled as compiled
 
     monkeypatch.setattr(cli, "_compile_hint_shown", False)
-    monkeypatch.setattr(compiled, "needs_compiling", lambda: True)
+    monkeypatch.setattr(compiled, "needs_compiling", lambda kernel: True)
     first = invoke("simulate", "--world", "mixed", "--steps", 3, "--out", tmp_path / "a").output
     assert "compiling the inner loops" in first
     monkeypatch.setattr(cli, "_compile_hint_shown", False)
-    monkeypatch.setattr(compiled, "needs_compiling", lambda: False)
+    monkeypatch.setattr(compiled, "needs_compiling", lambda kernel: False)
     assert "compiling" not in invoke("simulate", "--world", "mixed", "--steps", 3, "--out", tmp_path / "b").output
 
 
@@ -168,7 +168,7 @@ def test_the_compile_check_finds_this_machines_cache(monkeypatch, tmp_path):
     from bsslam.slam.range_kernels import linearize_beams
 
     invoke("simulate", "--world", "mixed", "--steps", 3, "--out", tmp_path)
-    assert not needs_compiling()
+    assert not needs_compiling(linearize_beams)
     cache_file = linearize_beams._cache._cache_file
     monkeypatch.setattr(cache_file, "_index_path", str(tmp_path / "missing.nbi"))
-    assert needs_compiling()
+    assert needs_compiling(linearize_beams)

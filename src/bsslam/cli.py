@@ -37,8 +37,9 @@ def progress_bar(description: str, total: int | None, unit: str = "") -> Iterato
     if not _compile_hint_shown:
         _compile_hint_shown = True
         from bsslam.compiled import needs_compiling
+        from bsslam.slam.range_kernels import linearize_beams   # one of the filter's kernels
 
-        if needs_compiling():
+        if needs_compiling(linearize_beams):
             console.print("[dim]first run on this machine: compiling the inner loops "
                           "(about a minute; cached for the next runs)[/dim]")
     columns = [TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),

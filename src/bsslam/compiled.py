@@ -23,13 +23,12 @@ from numba import njit
 jit = njit(cache=True, nogil=True, error_model="numpy")
 
 
-def needs_compiling() -> bool:
-    """Whether this machine has yet to compile the filter's loops (one of them has no cache
-    index: nothing was compiled here, or ``NUMBA_CACHE_DIR`` points somewhere new), so the
-    first scans will wait for the compiler. A hint for the command line: False when it
-    cannot tell (the index's path is numba's internal)."""
+def needs_compiling(kernel) -> bool:
+    """Whether this machine has yet to compile ``kernel`` (a ``@jit`` function): it has no
+    cache index (nothing was compiled here, or ``NUMBA_CACHE_DIR`` points somewhere new),
+    so its first call will wait for the compiler. A hint for the command line: False when
+    it cannot tell (the index's path is numba's internal)."""
     try:
-        from bsslam.slam.range_kernels import linearize_beams
-        return not os.path.exists(linearize_beams._cache._cache_file._index_path)
-    except (AttributeError, ImportError):
+        return not os.path.exists(kernel._cache._cache_file._index_path)
+    except AttributeError:
         return False
