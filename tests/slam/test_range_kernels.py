@@ -20,7 +20,7 @@ from bsslam.spline.intersect import _MAX_REFINE, _STEP_TOLERANCE, _unit_grid
 def _reference(mc, x, offset, curve, bearings, ranges, t0, max_tan):
     """The filter's former ``_linearize``: the numpy observation model, then the masks and
     the stacked Jacobian of the kept beams."""
-    maps = mc.batch(x, np.unique(curve))
+    maps = mc.table.with_control_points(mc.control_points(x), np.unique(curve))
     pred = predict_beams_batch(maps, curve, x[:3], offset, bearings, t0=t0)
     ok = pred.hit & np.isfinite(pred.z)
     grazing = ok & (np.abs(pred.r) > max_tan)
@@ -122,7 +122,7 @@ def test_global_search_equals_the_numpy_search():
     rng = np.random.default_rng(5)
     mc, curves, x = _map(rng, (3, 2, 3), (False, True, False))
     curve, bearings, ranges, t0 = _beams(rng, curves, x, np.zeros(3), 80, 1.0)
-    batch = mc.batch(x)
+    batch = mc.table.with_control_points(mc.control_points(x))
     lp = laser_pose(x[:3], np.zeros(3))
     mu = lp[2] + bearings
     expected = intersect_rays_batch(batch, curve, lp[:2], mu)

@@ -1,11 +1,12 @@
-"""All map splines as one batch of curves, for the filter's per-scan searches.
+"""All map splines as one table of curves, for the filter's per-scan searches.
 
-Association and the observation model query every map spline near the robot; over a
-:class:`~bsslam.spline.batch.CurveBatch` each query is one vectorised computation instead
-of one Python call per spline. The knot structure (:class:`~bsslam.spline.batch.CurveTable`)
-changes only when a spline is added, extended or removed, so the filter keeps it between
-scans and rebuilds it after such a change; the control points are read from the state
-mean whenever it moves.
+Association and the observation model query every map spline near the robot in one
+compiled call each (:func:`bsslam.slam.kernels.association_frame`,
+:func:`bsslam.slam.range_kernels.linearize_beams`), which read the knot structure
+(:class:`~bsslam.spline.batch.CurveTable`) and the control points from the state mean (or
+the fixed ones) and build the pieces' coefficients themselves. The knot structure changes
+only when a spline is added, extended or removed, so the filter keeps it between scans and
+updates it in place after such a change.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import numpy as np
 
 from bsslam.slam.features import SplineFeature
 from bsslam.slam.kernels import curve_state_indices
-from bsslam.spline.batch import CurveBatch, CurveTable, concat_tables, curve_table, kept_rows, take_curves
+from bsslam.spline.batch import CurveTable, concat_tables, curve_table, kept_rows, take_curves
 
 
 class MapCurves:
@@ -43,9 +44,8 @@ class MapCurves:
         self._in_state = self.state_rows[:, 0] >= 0
         self._all_in_state = bool(self._in_state.all())
         self._fixed = fixed
-        # a map that never moves (localisation in a fixed map): its batch once
+        # a map that never moves (localisation in a fixed map): its control points are fixed
         self._static = not self._in_state.any()
-        self._static_batch: CurveBatch | None = None
 
     @property
     def fixed_control_points(self) -> np.ndarray:
@@ -111,15 +111,6 @@ class MapCurves:
         if not self._all_in_state:
             cp = np.where(self._in_state[:, None], cp, self._fixed)
         return cp
-
-    def batch(self, x: np.ndarray, curves: np.ndarray | None = None) -> CurveBatch:
-        """The map splines at the state mean ``x``; only ``curves`` (indices) can be
-        queried when given (see :meth:`CurveTable.with_control_points`)."""
-        if self._static:
-            if self._static_batch is None:
-                self._static_batch = self.table.with_control_points(self._fixed)
-            return self._static_batch
-        return self.table.with_control_points(self.control_points(x), curves)
 
 
 def _rows_of(features: list[SplineFeature]) -> tuple[np.ndarray, np.ndarray]:
