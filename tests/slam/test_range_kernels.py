@@ -7,11 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from observation_oracle import predict_beams_batch
 from bsslam.slam import range_kernels
 from bsslam.slam.features import SplineFeature
 from bsslam.slam.kernels import stack_jacobian
 from bsslam.slam.map_curves import MapCurves
-from bsslam.slam.observation import laser_pose, linearize_beams, predict_beams_batch
+from bsslam.slam.observation import laser_pose, linearize_beams
 from bsslam.spline import fit_curve
 from bsslam.spline.batch import intersect_rays_batch
 from bsslam.spline.intersect import _MAX_REFINE, _STEP_TOLERANCE, _unit_grid

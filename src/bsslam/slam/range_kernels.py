@@ -1,8 +1,9 @@
 """Compiled linearisation of a scan's beams: the filter's observation model in one call.
 
 The filter linearises the range model two or three times a scan. Written as numpy over the
-beams (:func:`bsslam.slam.observation.predict_beams_batch`, then the masks and
-:func:`bsslam.slam.kernels.stack_jacobian`) it was about 140 Python-level calls each time:
+beams (the observation model over a batch of curves, then the masks and
+:func:`bsslam.slam.kernels.stack_jacobian`; that form is the tests' oracle,
+``tests/slam/observation_oracle.py``) it was about 140 Python-level calls each time:
 the map's coefficients, the ray Newton, the range Jacobians, the basis at the hits and the
 stacking are each a handful of small numpy calls over tens of beams. Here the compiled
 steps run back to back in one call. Only the transcendentals stay numpy (the cosines and

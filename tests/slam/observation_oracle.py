@@ -1,0 +1,54 @@
+"""The numpy form of the filter's beam prediction over a batch of curves, as it was before
+the linearisation was compiled (:func:`bsslam.slam.range_kernels.linearize_beams`): the
+oracle the compiled form must match bit for bit."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bsslam.slam.observation import _range_jacobians, laser_pose
+from bsslam.spline.batch import CurveBatch, intersect_rays_batch
+
+
+@dataclass(frozen=True)
+class BatchBeamPrediction:
+    """Predicted ranges and Jacobians of m beams, each against its own curve of a batch.
+
+    Attributes:
+        z, t, r, hit, H_pose: as in :class:`BeamPrediction`, (m,) and (m, 3).
+        window: (m, p+1) rows, in the batch's stacked control points, of the control points
+            with non-zero weight at each hit (p: the batch's padded degree).
+        real: (m, p+1) bool, False on padding entries (curves of lower degree; zero weight).
+        H_cp_x, H_cp_y: (m, p+1) ∂z/∂x_i and ∂z/∂y_i for the control points of ``window``.
+    """
+
+    z: np.ndarray
+    t: np.ndarray
+    r: np.ndarray
+    hit: np.ndarray
+    H_pose: np.ndarray
+    window: np.ndarray
+    real: np.ndarray
+    H_cp_x: np.ndarray
+    H_cp_y: np.ndarray
+
+
+def predict_beams_batch(batch: CurveBatch, curve: np.ndarray, robot_pose: np.ndarray,
+                        laser_offset: np.ndarray, bearings: np.ndarray, t0: np.ndarray | None = None,
+                        max_range: float = np.inf) -> BatchBeamPrediction:
+    """:func:`predict_beams` for beams that each name their curve: beam j with bearing
+    ``bearings[j]`` (rad) against curve ``curve[j]`` of ``batch`` (world frame), Newton from
+    ``t0[j]`` (m) — one vectorised computation for all the beams of a scan."""
+    lp = laser_pose(robot_pose, laser_offset)
+    mu = lp[2] + np.asarray(bearings, dtype=float)
+    hits = intersect_rays_batch(batch, curve, lp[:2], mu, t0=t0, max_range=max_range)
+    z, r, t = hits.range, hits.r, hits.t
+    gx, gy, H_pose = _range_jacobians(z, r, mu, robot_pose, laser_offset)
+    table = batch.table
+    piece, beta = table.basis_at(curve, np.where(hits.hit, t, table.lo[curve]))
+    return BatchBeamPrediction(
+        z=z, t=t, r=r, hit=hits.hit, H_pose=H_pose, window=table.window[piece], real=table.real[piece],
+        H_cp_x=-beta * gx[:, None], H_cp_y=-beta * gy[:, None],
+    )
