@@ -152,3 +152,23 @@ def test_compiled_block_read_equals_numpy_indexing():
     cols = rng.permutation(60)[:17].astype(np.intp)
     np.testing.assert_array_equal(take_block(P, rows, cols), P[np.ix_(rows, cols)])
     assert take_block(P, rows[:0], cols).shape == (0, 17)
+
+
+def test_reads_after_a_removal_are_the_dense_covariance_of_the_kept_entries():
+    """The rows of the deferred term the state keeps between reads are keyed by state
+    index; a removal renumbers the entries, so rows read before it must not serve after."""
+    rng = np.random.default_rng(13)
+    n = 40
+    P = random_spd(rng, n)
+    state = JointState(np.zeros(3), P[:3, :3], capacity=4, max_pending=32)
+    state.append(np.zeros(n - 3), P[3:, :3], P[3:, 3:])
+    cols = np.array([0, 1, 2, 10, 11, 25, 30])
+    W = rng.normal(size=(cols.size, 4)) * 0.05
+    state.subtract_column_update(cols, W)
+    dense = column_update(P, cols, W)
+    assert_reads_match(state, dense, np.arange(n))    # every row of the deferred term read
+    removed = np.array([5, 6, 20])
+    state.remove(removed)
+    kept = np.setdiff1d(np.arange(n), removed)
+    assert state.pending_rank > 0
+    assert_reads_match(state, dense[np.ix_(kept, kept)], np.arange(kept.size))
