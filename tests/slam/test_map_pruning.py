@@ -60,3 +60,26 @@ def test_pruning_off_by_default_keeps_everything():
     for _ in range(5):
         slam.step(None, empty_scan())
     assert len(slam.features) == 1
+
+
+def test_no_unconfirmed_spline_outlives_its_window_on_a_simulated_run():
+    """The filter only looks at the splines added since it last looked (not the whole map):
+    after every step, each spline no update has used is younger than the window, as a pass
+    over the whole map would leave it; one removed by the caller meanwhile is simply gone."""
+    from bsslam.experiments.consistency import simulation_config
+    from bsslam.se2 import between
+    from bsslam.sim import SimConfig, get_world, simulate
+
+    sim = SimConfig()
+    frames = list(simulate(get_world("corridor-loop"), sim, seed=3, steps=80))
+    slam = SplineSLAM(simulation_config(config(2), sim), initial_pose=frames[0].odometry)
+    prev, pruned, removed = frames[0].odometry, 0, None
+    for k, fr in enumerate(frames):
+        pruned += slam.step(between(prev, fr.odometry), fr.scan).pruned_splines
+        prev = fr.odometry
+        assert all(f.observations > 0 or slam.steps - 1 - f.created < 2 for f in slam.features.values())
+        young = [f.id for f in slam.features.values() if f.observations == 0]
+        if removed is None and young and k > 10:
+            removed = young[0]
+            slam.remove_feature(removed)
+    assert pruned > 0 and removed is not None and removed not in slam.features

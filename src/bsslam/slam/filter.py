@@ -131,6 +131,7 @@ class SplineSLAM:
         self._map: MapCurves | None = None  # batch table of the map splines, see _map_curves
         self._map_added: list[SplineFeature] = []   # features added since it was built
         self._features: ScanFeatures | None = None   # the current scan's
+        self._unconfirmed: list[int] = []   # splines no update has used yet, oldest first (see _prune)
         self._gate = gate_threshold(self.config.observation.gate_probability)
         self._loose_gate = gate_threshold(1.0 - (1.0 - self.config.observation.gate_probability) / 100.0)
         self._build_map = True
@@ -510,6 +511,7 @@ class SplineSLAM:
             idx = self.state.append_dependent(block.mean, block.cols, block.J, block.noise(self._range_variance))
             feature.idx_x, feature.idx_y = idx[:n], idx[n:]
         self.features[feature.id] = feature
+        self._unconfirmed.append(feature.id)
         self._map_grew(feature)
         return True
 
@@ -558,7 +560,13 @@ class SplineSLAM:
         after = self.config.mapping.prune_after_scans
         if not after:
             return 0
-        stale = [f.id for f in self.features.values() if f.observations == 0 and self.steps - f.created >= after]
+        # A spline once used stays, so the candidates are the splines of the last ``after``
+        # scans that no update has used yet (``_unconfirmed``): a pass over the whole map each
+        # scan cost 0.1 ms at 150 splines.
+        waiting = [self.features[i] for i in self._unconfirmed if i in self.features]
+        waiting = [f for f in waiting if f.observations == 0]
+        stale = [f.id for f in waiting if self.steps - f.created >= after]
+        self._unconfirmed = [f.id for f in waiting if self.steps - f.created < after]
         self.remove_features(stale)
         return len(stale)
 
