@@ -16,6 +16,12 @@ Two runs of the same seeded data: the first times whole scans (medians per state
 the second times the filter's stages with light wrappers around its methods and reports
 them for the scans whose state size is within ``--around`` ± 10 %. ``--profile`` adds a
 cProfile listing of those scans.
+
+The speed of a shared machine drifts (here by up to 1.6× within minutes), so the first run is
+bracketed by a reference timed in the same process: the textbook EKF's covariance update at
+1000 state dimensions, P ← P − Z Zᵀ on a dense P with Z = P[:, cols] W of rank 55 (the
+rank of a typical scan's update here). Each bin's median is also given as a multiple of it:
+a figure that moves far less with the machine than milliseconds do.
 """
 
 import os
@@ -42,7 +48,7 @@ from bsslam.sim.geometry import WallSet, rounded_rectangle_walls  # noqa: E402
 from bsslam.sim.paths import rounded_rectangle_loop  # noqa: E402
 from bsslam.sim.worlds import World  # noqa: E402
 from bsslam.slam import SplineSLAM  # noqa: E402
-from bsslam.slam.state import JointState  # noqa: E402
+from bsslam.slam.state import JointState, _subtract_outer  # noqa: E402
 
 BINS = [0, 250, 500, 750, 1000, 1250, 1500, 2000, 3000, 10**9]
 # Stages in the order of a scan; each is the time spent in the listed callables, less the time
@@ -67,6 +73,23 @@ STAGES = {
     "covariance update": [(ekf_module.StackedGain, "update_covariance")],
     "enlarge": [(SplineSLAM, "_enlarge")],
 }
+
+
+def reference_update_ms(n: int = 1000, rank: int = 55, repeats: int = 15) -> float:
+    """Median ms of the textbook EKF covariance update on a dense (n, n) P: P ← P − Z Zᵀ with
+    Z = P[:, cols] W for ``rank`` columns, written exactly symmetric as the filter's fold
+    writes it (:func:`bsslam.slam.state._subtract_outer`)."""
+    rng = np.random.default_rng(0)
+    A = rng.standard_normal((n, n)) / np.sqrt(n)
+    P = A @ A.T + np.eye(n)
+    cols = np.sort(rng.choice(n, rank, replace=False))
+    W = 1e-3 * rng.standard_normal((rank, rank))
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        _subtract_outer(P, P[:, cols] @ W)
+        times.append(time.perf_counter() - t0)
+    return 1000 * float(np.median(times))
 
 
 def large_corridor(width_m: float = 30.0, height_m: float = 20.0) -> World:
@@ -187,14 +210,18 @@ def main() -> None:
     config = simulation_config(base, sim)
     frames = list(simulate(world, sim, seed=0, steps=steps))
 
+    before = reference_update_ms()
     sizes, times, _ = run(frames, config)
+    reference = 0.5 * (before + reference_update_ms())
     print(f"world {world.name}: {len(frames)} scans, final state size {sizes[-1]}")
-    print(f"{'state size':>14} {'scans':>6} {'median ms/scan':>15} {'p90 ms/scan':>12}")
+    print(f"reference: the textbook covariance update at n = 1000 (dense, rank 55) took {reference:.2f} ms "
+          f"(median of 15 before the run and 15 after it: {before:.2f} ms before)")
+    print(f"{'state size':>14} {'scans':>6} {'median ms/scan':>15} {'p90 ms/scan':>12} {'median/reference':>17}")
     for lo, hi in zip(BINS[:-1], BINS[1:]):
         sel = (sizes >= lo) & (sizes < hi)
         if sel.sum() >= 3:
             print(f"{lo:>6}–{min(hi, sizes.max()):<7} {sel.sum():>6} {np.median(times[sel]):>15.2f} "
-                  f"{np.percentile(times[sel], 90):>12.2f}")
+                  f"{np.percentile(times[sel], 90):>12.2f} {np.median(times[sel]) / reference:>17.2f}")
 
     window = (0.9 * args.around, 1.1 * args.around)
     stage_times: dict[str, list[float]] = {}
