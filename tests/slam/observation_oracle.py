@@ -8,8 +8,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ray_oracle import basis_at, intersect_rays_batch
 from bsslam.slam.observation import _range_jacobians, laser_pose
-from bsslam.spline.batch import CurveBatch, intersect_rays_batch
+from bsslam.spline.batch import CurveBatch
 
 
 @dataclass(frozen=True)
@@ -47,7 +48,7 @@ def predict_beams_batch(batch: CurveBatch, curve: np.ndarray, robot_pose: np.nda
     z, r, t = hits.range, hits.r, hits.t
     gx, gy, H_pose = _range_jacobians(z, r, mu, robot_pose, laser_offset)
     table = batch.table
-    piece, beta = table.basis_at(curve, np.where(hits.hit, t, table.lo[curve]))
+    piece, beta = basis_at(table, curve, np.where(hits.hit, t, table.lo[curve]))
     return BatchBeamPrediction(
         z=z, t=t, r=r, hit=hits.hit, H_pose=H_pose, window=table.window[piece], real=table.real[piece],
         H_cp_x=-beta * gx[:, None], H_cp_y=-beta * gy[:, None],

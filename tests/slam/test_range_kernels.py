@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 from observation_oracle import predict_beams_batch
+from ray_oracle import intersect_rays_batch
 from bsslam.slam import range_kernels
 from bsslam.slam.features import SplineFeature
 from bsslam.slam.kernels import stack_jacobian
 from bsslam.slam.map_curves import MapCurves
 from bsslam.slam.observation import laser_pose, linearize_beams
 from bsslam.spline import fit_curve
-from bsslam.spline.batch import intersect_rays_batch
 from bsslam.spline.intersect import _MAX_REFINE, _STEP_TOLERANCE, _unit_grid
 
 
@@ -119,7 +119,7 @@ def test_linearize_beams_equals_the_numpy_path(case, seed):
 
 def test_global_search_equals_the_numpy_search():
     """Beams whose Newton fails (bad or no start) take the compiled global search: the
-    numbers of intersect_rays_batch's, ray by ray."""
+    numbers of intersect_rays_batch's (tests/spline/ray_oracle.py), ray by ray."""
     rng = np.random.default_rng(5)
     mc, curves, x = _map(rng, (3, 2, 3), (False, True, False))
     curve, bearings, ranges, t0 = _beams(rng, curves, x, np.zeros(3), 80, 1.0)

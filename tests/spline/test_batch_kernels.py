@@ -6,11 +6,12 @@ from __future__ import annotations
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from ray_oracle import intersect_rays_batch
 from spline_cases import batch_of, curves, params_in, wall_curves
 
 from bsslam.spline import intersect as one_curve
 from bsslam.spline import kernels
-from bsslam.spline.batch import closest_points_batch, intersect_rays_batch
+from bsslam.spline.batch import closest_points_batch
 from bsslam.spline.pieces import horner_rows
 
 SETTINGS = settings(max_examples=30, deadline=None)
@@ -79,6 +80,7 @@ def test_evaluate_subset_batches_and_derivative_path(cs, seed):
 @SETTINGS
 @given(cs=st.lists(wall_curves(), min_size=1, max_size=4), seed=st.integers(0, 2**32 - 1))
 def test_ray_paths_agree(cs, seed):
+    """The ray oracle's paths (shared or per-ray origins, every beam guessed or not)."""
     rng = np.random.default_rng(seed)
     batch = batch_of(cs)
     origin = rng.uniform(-4.0, 4.0, 2)

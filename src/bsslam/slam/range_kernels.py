@@ -16,9 +16,9 @@ compiled steps that already existed are called as they are
 (:func:`bsslam.spline.kernels.ray_newton`, :func:`bsslam.spline.kernels.hit_basis`,
 :func:`bsslam.slam.kernels.stack_jacobian`); the global search for beams whose Newton fails
 (one or two calls in three on the simulated corridor: beams past a map spline's end) is
-:func:`global_search`, the numpy search of ``intersect_rays_batch`` loop by loop. The tests
-check both against the numpy path (random maps with misses, grazing beams, mixed degrees
-and fixed splines).
+:func:`global_search`, loop for loop the numpy search of ``intersect_rays_batch``, now the
+tests' oracle ``tests/spline/ray_oracle.py``. The tests check both against the numpy path
+(random maps with misses, grazing beams, mixed degrees and fixed splines).
 
 Maps are given as in :class:`~bsslam.slam.map_curves.MapCurves`: the
 :class:`~bsslam.spline.batch.CurveTable` fields, ``state_rows`` (N, 2) (−1 for a fixed
@@ -87,8 +87,8 @@ def linearize_beams(x, state_rows, fixed, power_basis, window, real, piece_lo, w
                     ranges, t0, cos_mu, sin_mu, cos_phi, sin_phi, offset, max_tan, max_range, max_newton,
                     step_tolerance, root_tolerance, grid, max_refine):
     """Ranges and stacked Jacobian of m beams, each against its own map curve, at the state
-    mean ``x`` (n,): ``intersect_rays_batch`` (Newton from the guesses, the global search
-    where it fails), then :func:`stack_ranges`.
+    mean ``x`` (n,): ``intersect_rays_batch`` of ``tests/spline/ray_oracle.py`` (Newton from
+    the guesses, the global search where it fails), then :func:`stack_ranges`.
 
     Args:
         x: (n,) state mean; the robot pose is x[0:3].
@@ -135,12 +135,13 @@ def linearize_beams(x, state_rows, fixed, power_basis, window, real, piece_lo, w
 @jit
 def global_search(hits, rays, x, state_rows, fixed, coeffs_t, window, piece_lo, width, piece_start, curve, ox, oy,
                   cos_mu, sin_mu, grid, max_range, max_refine, step_tolerance):
-    """The global search of ``intersect_rays_batch`` (``batch._ray_global_search``, then
-    ``intersect.nearest_crossings``) for the beams ``rays`` (k,) from the laser at (ox, oy)
-    (m): convex-hull culling of the (ray, piece) pairs, sampling at ``grid`` (of a unit
-    piece), bracketed Newton (all brackets iterated until every one has converged, as the
-    numpy form does: results depend on it) and each ray's nearest forward root. Writes the
-    rows t, range, x̃', ỹ' of each hit into ``hits`` (4, m) (the other columns are left)."""
+    """The global search of ``intersect_rays_batch`` (``_ray_global_search`` of
+    ``tests/spline/ray_oracle.py``, then ``intersect.nearest_crossings``) for the beams
+    ``rays`` (k,) from the laser at (ox, oy) (m): convex-hull culling of the (ray, piece)
+    pairs, sampling at ``grid`` (of a unit piece), bracketed Newton (all brackets iterated
+    until every one has converged, as the numpy form does: results depend on it) and each
+    ray's nearest forward root. Writes the rows t, range, x̃', ỹ' of each hit into ``hits``
+    (4, m) (the other columns are left)."""
     k = rays.shape[0]
     n_coef = coeffs_t.shape[0]
     total = 0

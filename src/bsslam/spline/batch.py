@@ -1,5 +1,5 @@
-"""Many spline curves at once: evaluation, ray intersection and closest points over a
-table of the polynomial pieces of all of them.
+"""Many spline curves at once: evaluation and closest points over a table of the
+polynomial pieces of all of them.
 
 The filter asks the same questions of dozens of curves per scan (where does each beam hit
 its map spline, which map point is closest to each observed spline end). Asked one curve
@@ -15,20 +15,25 @@ Two layers:
 * :class:`CurveBatch` — a table plus control points: the per-piece polynomial coefficients,
   one tensor contraction away from the table.
 
-Per-call cost is numpy call overhead (tens of beams, a few curves), so the searches are
+Per-call cost is numpy call overhead (tens of queries, a few curves), so the searches are
 written for few numpy calls: pieces are found with one exact complex-key searchsorted and
 coefficients are gathered as (p+1, 2, m) rows. The Newton iterations, a dozen numpy calls
-per step, are compiled loops over the rays or starts (:mod:`bsslam.spline.kernels`) that
-do the same floating-point operations in the same order, so the results are bit-identical
-to the numpy forms they replaced.
+per step, are compiled loops over the starts (:mod:`bsslam.spline.kernels`) that do the
+same floating-point operations in the same order, so the results are bit-identical to the
+numpy forms they replaced.
 
 Curves may differ in degree: the table is padded to the largest degree p with zero
 coefficients (which Horner evaluates exactly), and a padded piece's control-point window
 repeats its last real control point with zero weight.
 
-The searches follow :func:`bsslam.spline.intersect_rays` and
-:func:`bsslam.spline.closest_point` step for step (same starts, iterations, tolerances and
-acceptance tests); results agree with them up to rounding.
+The closest-point search follows :func:`bsslam.spline.closest_point` step for step (same
+starts, iterations, tolerances and acceptance tests); results agree with it up to rounding.
+
+Where each beam hits its map spline is asked of the table's arrays directly by the filter's
+compiled linearisation (:func:`bsslam.slam.range_kernels.linearize_beams`). The numpy ray
+intersection over a batch that it replaced, which followed
+:func:`bsslam.spline.intersect_rays` step for step, is the tests' oracle
+(``tests/spline/ray_oracle.py``).
 """
 
 from __future__ import annotations
@@ -43,9 +48,6 @@ from bsslam.spline import kernels
 from bsslam.spline.closest import MAX_SAMPLES_PER_SPAN
 from bsslam.spline.closest import _MAX_NEWTON as _CLOSEST_MAX_NEWTON
 from bsslam.spline.closest import _STEP_TOLERANCE as _CLOSEST_STEP_TOLERANCE
-from bsslam.spline.intersect import _MAX_NEWTON as _RAY_MAX_NEWTON
-from bsslam.spline.intersect import _ROOT_TOLERANCE_M, _STEP_TOLERANCE, RayHits
-from bsslam.spline.intersect import beam_frame_polynomials, nearest_crossings
 from bsslam.spline.pieces import horner_with_derivatives
 
 
@@ -140,13 +142,6 @@ class CurveTable:
         # a NaN parameter sorts after every key: give it its own curve's last piece
         np.minimum(piece, self.last_piece.take(curve), out=piece)
         return piece, t - self.piece_lo.take(piece), t
-
-    def basis_at(self, curve: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Piece (m,) and values (m, p+1) of the basis functions of its control-point window
-        ``window[piece]`` at finite parameters ``t`` (m,) of curves ``curve`` (m,), clamped
-        as :meth:`locate` clamps them (compiled: :func:`bsslam.spline.kernels.hit_basis`)."""
-        return kernels.hit_basis(self.power_basis, self.piece_lo, self.piece_start, self.lo, self.hi,
-                                 np.asarray(curve, dtype=np.intp), np.asarray(t, dtype=float))
 
 
 @dataclass(frozen=True, eq=False)
@@ -298,139 +293,6 @@ def _search(keys: np.ndarray, curve: np.ndarray, t: np.ndarray) -> np.ndarray:
     piece = keys.searchsorted(key, side="right")
     piece -= 1
     return piece
-
-
-# -- ray intersection ------------------------------------------------------------------------
-
-def intersect_rays_batch(batch: CurveBatch, curve: np.ndarray, origins: np.ndarray, angles: np.ndarray,
-                         t0: np.ndarray | None = None, max_range: float = np.inf,
-                         *, samples_per_span: int = 8) -> RayHits:
-    """Nearest intersection of each ray with its own curve: :func:`bsslam.spline.intersect_rays`
-    for rays that each name their curve.
-
-    Args:
-        batch: the curves.
-        curve: (m,) curve index of each ray.
-        origins: (2,) or (m, 2) ray origins (m).
-        angles: (m,) ray directions μ (rad).
-        t0: optional (m,) parameter guesses (m); NaN means no guess.
-        max_range: hits farther than this (m) count as misses.
-        samples_per_span: samples per piece in the global search (≥ 2).
-
-    Returns:
-        RayHits with (m,) arrays.
-    """
-    curve = np.asarray(curve, dtype=np.intp)
-    mu = np.asarray(angles, dtype=float)
-    m = mu.shape[0]
-    origin = np.asarray(origins, dtype=float)
-    # one origin for all rays (the filter's case) stays a (2, 1) column
-    origin = origin[:, None] if origin.shape == (2,) else np.broadcast_to(origin, (m, 2)).T
-    if curve.shape != (m,):
-        raise SplineError(f"curve must have shape ({m},), got {curve.shape}")
-    if samples_per_span < 2:
-        raise SplineError(f"samples_per_span must be ≥ 2, got {samples_per_span}")
-    rays = _Rays(curve, origin, np.cos(mu), np.sin(mu))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        if t0 is None:
-            out = np.full((4, m), np.nan)      # rows t, range, x̃', ỹ'; NaN where no hit
-            todo = np.arange(m)
-        else:
-            guess = np.asarray(t0, dtype=float)
-            if guess.shape != (m,):
-                raise SplineError(f"t0 must have shape ({m},), got {guess.shape}")
-            finite = np.isfinite(guess)
-            if np.count_nonzero(finite) == m:  # the filter's case: every beam has a guess
-                ok, out = _ray_newton(batch, rays, guess, max_range)
-                missed = ~ok
-                np.copyto(out, np.nan, where=missed)
-                todo = missed.nonzero()[0]
-            else:
-                out = np.full((4, m), np.nan)
-                idx = finite.nonzero()[0]
-                ok, values = _ray_newton(batch, rays.take(idx), guess[idx], max_range)
-                out[:, idx[ok]] = values[:, ok]
-                left = np.ones(m, dtype=bool)
-                left[idx[ok]] = False
-                todo = left.nonzero()[0]
-        if todo.size:
-            ok, values = _ray_global_search(batch, rays.take(todo), max_range, samples_per_span)
-            out[:, todo[ok]] = values[:, ok]
-        t, rng, slope_x, slope_y = out
-        r = slope_x / slope_y
-    return RayHits(t=t, range=rng, r=r, hit=np.isfinite(rng))
-
-
-@dataclass(frozen=True)
-class _Rays:
-    """Curve index (k,), origins (2, k) or one shared origin (2, 1) (m), direction
-    cosines cos, sin (k,) of k rays."""
-
-    curve: np.ndarray
-    origin: np.ndarray
-    cos: np.ndarray
-    sin: np.ndarray
-
-    def take(self, index: np.ndarray) -> _Rays:
-        origin = self.origin if self.origin.shape[1] == 1 else self.origin[:, index]
-        return _Rays(self.curve[index], origin, self.cos[index], self.sin[index])
-
-    def origin_of(self, index: np.ndarray) -> np.ndarray:
-        """(2, len(index)) or the shared (2, 1) origin of rays ``index``."""
-        return self.origin if self.origin.shape[1] == 1 else self.origin[:, index]
-
-
-def _ray_newton(batch: CurveBatch, rays: _Rays, t: np.ndarray, max_range: float
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """Newton ``t ← t − ỹ/ỹ'`` from the guesses, clamped to each curve's domain (as for one
-    curve). Returns ok (k,) and the rows t, x̃, x̃', ỹ' (4, k).
-
-    A ray stops (keeps its t) at the first step that does not move it; compiled, ray by ray
-    (:func:`bsslam.spline.kernels.ray_newton`)."""
-    table = batch.table
-    ox, oy = rays.origin
-    return kernels.ray_newton(batch.coeffs_t, table.piece_lo, table.piece_start, table.lo, table.hi,
-                              rays.curve, np.ascontiguousarray(ox), np.ascontiguousarray(oy), rays.cos, rays.sin,
-                              np.asarray(t, dtype=float), float(max_range), _RAY_MAX_NEWTON, _STEP_TOLERANCE,
-                              _ROOT_TOLERANCE_M)
-
-
-def _ray_global_search(batch: CurveBatch, rays: _Rays, max_range: float, samples_per_span: int):
-    """The global search of one curve's ``intersect_rays`` over (ray, piece of its curve)
-    pairs: convex-hull culling, sampling, bracketed Newton, nearest root per ray.
-    Returns ok (k,) and the rows t, range, x̃', ỹ' (4, k), NaN where no hit.
-
-    The candidate pairs come from the curves' table; the crossings are found by the same
-    :func:`~bsslam.spline.intersect.nearest_crossings` as for one curve."""
-    table = batch.table
-    k = rays.curve.shape[0]
-    # (ray, piece of its curve) pairs, ray by ray: rays sharing a curve repeat its pieces
-    first = table.piece_start.take(rays.curve)
-    count = table.piece_start.take(rays.curve + 1) - first
-    ray = np.repeat(np.arange(k), count)
-    piece = np.arange(ray.shape[0]) - np.repeat(np.cumsum(count) - count, count) + first.take(ray)
-    # Convex hull: rotated control points of each candidate piece, (K, p+1).
-    cp = batch.control_points.take(table.window.take(piece, axis=0), axis=0)
-    c, s = rays.cos.take(ray)[:, None], rays.sin.take(ray)[:, None]
-    ox, oy = rays.origin_of(ray)
-    dx, dy = cp[:, :, 0] - ox[:, None], cp[:, :, 1] - oy[:, None]
-    xw, yw = c * dx + s * dy, c * dy - s * dx
-    keep = yw.min(axis=1) <= 0
-    keep &= yw.max(axis=1) >= 0
-    keep &= xw.max(axis=1) > 0
-    keep &= xw.min(axis=1) <= max_range
-    keep = keep.nonzero()[0]
-    ray, piece = ray.take(keep), piece.take(keep)
-    out = np.full((4, k), np.nan)
-    if ray.size == 0:
-        return np.zeros(k, dtype=bool), out
-    cx, cy = beam_frame_polynomials(batch.coeffs_t.take(piece, axis=2), rays.cos.take(ray), rays.sin.take(ray),
-                                    *rays.origin_of(ray))
-    ok, hit_rays, best_pair, values = nearest_crossings(cx, cy, table.width.take(piece), ray, k, samples_per_span,
-                                                        max_range)
-    out[0, hit_rays] = table.piece_lo.take(piece.take(best_pair)) + values[0]
-    out[1:, hit_rays] = values[1:]
-    return ok, out
 
 
 # -- closest points --------------------------------------------------------------------------
