@@ -62,7 +62,7 @@ def _piece_of(piece_lo, first, last, t):
 @jit
 def _value_and_slope(coeffs_t, piece, u):
     """Point (x, y) and first derivative (x', y') of a piece at local u: Horner on both at
-    once, the operations of ``batch._value_and_slope``."""
+    once, in the order of the numpy form this replaced."""
     p = coeffs_t.shape[0] - 1
     vx, vy = coeffs_t[p, 0, piece], coeffs_t[p, 1, piece]
     dx, dy = 0.0, 0.0
@@ -126,8 +126,8 @@ def ray_newton(coeffs_t, piece_lo, piece_start, lo, hi, curve, ox, oy, cos, sin,
 
 @jit
 def _value_slope_curvature(coeffs_t, piece, u):
-    """Point, first and second derivative (x, y each) of a piece at local u: the Horner of
-    ``batch._value_slope_curvature``, operation for operation."""
+    """Point, first and second derivative (x, y each) of a piece at local u: one Horner pass
+    for all three, operation for operation the numpy form this replaced."""
     n = coeffs_t.shape[0]
     c0x, c0y = coeffs_t[0, 0, piece], coeffs_t[0, 1, piece]
     if n == 1:
