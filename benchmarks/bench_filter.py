@@ -59,14 +59,14 @@ BINS = [0, 250, 500, 750, 1000, 1250, 1500, 2000, 3000, 10**9]
 # Stages in the order of a scan; each is the time spent in the listed callables, less the time
 # of other listed callables they call (so the stages do not overlap). "other" is the rest of
 # step() (beam grouping, row selection, bookkeeping).
-# - "covariance reads" are the reads of P through the state's deferred update (base − B G Bᵀ):
+# - "covariance reads" are the reads of P through the state's deferred update (base − B G Bᵀ, B K):
 #   the blocks the gains, gates and association read, and P[:, cols]·v, the mean correction of
 #   the whole state. They grow with the state (n rows) and with the deferred term's width.
 # - "S/gain" is the rest of the gains: S = H P Hᵀ + R, its factorisation and the solves.
 # - "covariance update" is the deferred low-rank update and, every few scans, the O(n²) fold of
 #   the deferred term into P (JointState), so its mean, not its median, is its cost per scan.
 STAGES = {
-    "predict": [(filter_module, "predict")],
+    "predict": [(filter_module, "predict_state")],
     "segment+fit": [(SplineSLAM, "_observe")],
     "associate": [(SplineSLAM, "_associate")],
     "linearise": [(SplineSLAM, "_linearize")],

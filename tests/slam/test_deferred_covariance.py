@@ -1,10 +1,11 @@
-"""The state defers P ← P − Z Zᵀ, Z = P[:, cols] W, and keeps it compressed as
-P = base − B G Bᵀ: whatever is read, transformed, appended or removed in between, it equals
-the dense covariance, and folding keeps P exactly symmetric."""
+"""The state defers P ← P − Z Zᵀ, Z = P[:, cols] W, and keeps it compressed (P = base − B G Bᵀ
+on the lazy entries, the pose and the newest entries kept exactly): whatever is read,
+predicted, transformed, appended or removed in between, it equals the dense covariance,
+and folding keeps P exactly symmetric. The basis always holds the pose's three columns."""
 
 import numpy as np
 
-from bsslam.slam.motion import predict
+from bsslam.slam.motion import predict, predict_state
 from bsslam.slam.state import POSE, JointState
 
 
@@ -46,15 +47,15 @@ def test_pending_updates_read_and_fold_like_the_dense_covariance():
         dense = column_update(dense, cols, W)
         assert_reads_match(state, dense, probe)
         assert_reads_match(state, dense, cols)
-    assert state.pending_rank == 0   # the last update was wider than the basis: folded
+    assert state.pending_rank == 3   # the last update was wider than the basis: folded
     cols = np.array([0, 1, 2, 5])
     W = rng.normal(size=(4, 2)) * 0.05
     state.subtract_column_update(cols, W)
     dense = column_update(dense, cols, W)
-    assert state.pending_rank == 4   # the basis holds each touched base column once
+    assert state.pending_rank == 4   # the pose's columns and the touched base column
     np.testing.assert_allclose(state.P, dense, atol=1e-12)
     np.testing.assert_array_equal(state.P, state.P.T)
-    assert state.pending_rank == 0
+    assert state.pending_rank == 3
 
 
 def test_a_basis_shared_by_updates_stays_exact():
@@ -69,7 +70,7 @@ def test_a_basis_shared_by_updates_stays_exact():
         W = rng.normal(size=(cols.size, cols.size)) * 0.1
         state.subtract_column_update(cols, W)
         dense = column_update(dense, cols, W)
-    assert state.pending_rank == cols.size
+    assert state.pending_rank == cols.size   # the pose's three and the four map columns
     assert_reads_match(state, dense, np.arange(n))
     np.testing.assert_allclose(state.P, dense, atol=1e-12)
 
@@ -85,10 +86,9 @@ def test_prediction_transform_appends_and_removal_carry_the_pending_term():
     state.subtract_column_update(cols, W)
     dense = column_update(P, cols, W)
     x = state.x.copy()
-    # prediction on the base, F_x carried through the pending term (and Q on the pose)
+    # prediction: the pose's rows, kept apart from the deferred term
     delta, Q = np.array([0.3, 0.05, 0.1]), np.diag([1e-4, 1e-4, 1e-5])
-    F_x = predict(state.x, state.base, delta, Q)
-    state.transform_pending(POSE, F_x)
+    predict_state(state, delta, Q)
     predict(x, dense, delta, Q)
     np.testing.assert_allclose(state.x, x, atol=1e-15)
     np.testing.assert_allclose(state.columns(np.arange(n)), dense, atol=1e-12)
@@ -172,3 +172,99 @@ def test_reads_after_a_removal_are_the_dense_covariance_of_the_kept_entries():
     kept = np.setdiff1d(np.arange(n), removed)
     assert state.pending_rank > 0
     assert_reads_match(state, dense[np.ix_(kept, kept)], np.arange(kept.size))
+
+
+
+def test_predictions_and_new_entries_do_not_grow_the_basis():
+    """The pose and the entries appended since the last fold are kept exactly (eager): a
+    prediction and a new feature that depends on the pose leave the basis as it was, so
+    only map columns touched again after a fold join it."""
+    rng = np.random.default_rng(21)
+    n = 50
+    P = random_spd(rng, n)
+    state = JointState(rng.normal(size=3), P[:3, :3], capacity=4, max_pending=64, max_eager=64)
+    state.append(rng.normal(size=n - 3), P[3:, :3], P[3:, 3:])
+    dense, x = P.copy(), state.x.copy()
+    cols = np.array([0, 1, 2, 10, 11])
+    for _ in range(5):
+        delta, Q = rng.normal(size=3) * 0.2, np.diag(rng.uniform(1e-5, 1e-3, 3))
+        predict_state(state, delta, Q)
+        predict(x, dense, delta, Q)
+        W = rng.normal(size=(cols.size, 3)) * 0.05
+        state.subtract_column_update(cols, W)
+        dense = column_update(dense, cols, W)
+    assert state.pending_rank == 5   # the pose's three columns, and entries 10 and 11 once each
+    J = rng.normal(size=(4, 3))      # a new feature seen from the pose
+    noise = 0.01 * np.eye(4)
+    state.append_dependent(np.zeros(4), POSE, J, noise)
+    cross = J @ dense[:3]
+    dense = np.block([[dense, cross.T], [cross, cross[:, :3] @ J.T + noise]])
+    new = np.array([0, 1, 2, n, n + 1])
+    W = rng.normal(size=(5, 3)) * 0.05
+    state.subtract_column_update(new, W)
+    dense = column_update(dense, new, W)
+    assert state.pending_rank == 5 and state.eager_count == 3 + 4
+    np.testing.assert_allclose(state.x[:n], x, atol=1e-15)
+    assert_reads_match(state, dense, np.array([0, 1, 2, 10, 30, n, n + 3]))
+    np.testing.assert_allclose(state.P, dense, atol=1e-12)
+
+
+def test_random_sequences_of_operations_equal_the_dense_covariance():
+    """Every operation in random order, with small bases and eager blocks so that folds,
+    promotions (an extension of entries partly eager) and the fallbacks for lack of room
+    all happen: the reads equal a dense P updated the textbook way."""
+    for seed in range(60):
+        rng = np.random.default_rng(seed)
+        n = 20
+        P = random_spd(rng, n)
+        state = JointState(rng.normal(size=3), P[:3, :3], capacity=4, max_pending=int(rng.integers(6, 40)),
+                           max_eager=int(rng.integers(3, 30)))
+        state.append(rng.normal(size=n - 3), P[3:, :3], P[3:, 3:])
+        dense, x = P.copy(), state.x.copy()
+        for _ in range(40):
+            op = rng.choice(["predict", "update", "update", "append", "dependent", "dependent", "transform",
+                             "remove", "fold"])
+            n = state.size
+            if op == "predict":
+                delta, Q = rng.normal(size=3) * 0.2, np.diag(rng.uniform(1e-5, 1e-3, 3))
+                predict_state(state, delta, Q)
+                predict(x, dense, delta, Q)
+            elif op == "update":
+                picked = rng.choice(np.arange(3, n), size=min(int(rng.integers(1, 8)), n - 3), replace=False)
+                cols = np.unique(np.concatenate([POSE, picked]))
+                W = rng.normal(size=(cols.size, 3)) * 0.05
+                state.subtract_column_update(cols, W)
+                dense = column_update(dense, cols, W)
+            elif op == "append":
+                cross, block = rng.normal(size=(2, n)) * 0.01, 5.0 * np.eye(2)
+                state.append(np.zeros(2), cross, block)
+                dense = np.block([[dense, cross.T], [cross, block]])
+                x = np.concatenate([x, np.zeros(2)])
+            elif op == "dependent":
+                k = int(rng.integers(1, 6))
+                src = np.unique(np.concatenate([POSE[: rng.integers(0, 4)], rng.choice(np.arange(3, n), 2, replace=False)]))
+                J, noise = rng.normal(size=(k, src.size)) * 0.5, 0.01 * np.eye(k)
+                state.append_dependent(np.zeros(k), src, J, noise)
+                cross = J @ dense[src]
+                dense = np.block([[dense, cross.T], [cross, cross[:, src] @ J.T + noise]])
+                x = np.concatenate([x, np.zeros(k)])
+            elif op == "transform":
+                idx = rng.choice(np.arange(3, n), min(int(rng.integers(1, 5)), n - 3), replace=False)
+                T = np.eye(idx.size) + 0.3 * rng.normal(size=(idx.size, idx.size))
+                state.transform(idx, T)
+                A = np.eye(n)
+                A[np.ix_(idx, idx)] = T
+                dense = A @ dense @ A.T
+                x[idx] = T @ x[idx]
+            elif op == "remove" and n > 10:
+                gone = rng.choice(np.arange(3, n), 2, replace=False)
+                state.remove(gone)
+                kept = np.setdiff1d(np.arange(n), gone)
+                dense, x = dense[np.ix_(kept, kept)], x[kept]
+            elif op == "fold":
+                state.fold()
+            np.testing.assert_allclose(state.x, x, atol=1e-12)
+            probe = rng.choice(np.arange(state.size), 6, replace=False)
+            assert_reads_match(state, dense, np.unique(np.concatenate([POSE, probe])))
+        np.testing.assert_allclose(state.P, dense, atol=1e-10)
+        np.testing.assert_array_equal(state.P, state.P.T)

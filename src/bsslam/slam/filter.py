@@ -23,7 +23,7 @@ from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
 from bsslam.slam.features import MapSpline, SplineFeature
 from bsslam.slam.kernels import association_frame
 from bsslam.slam.map_curves import MapCurves
-from bsslam.slam.motion import motion_noise, predict
+from bsslam.slam.motion import motion_noise, predict_state
 from bsslam.slam.observation import laser_pose, linearize_beams
 from bsslam.slam.state import POSE, JointState
 from bsslam.spline import FitResult, extend_curve, fit_curve
@@ -217,9 +217,7 @@ class SplineSLAM:
                 Q = np.asarray(odometry_covariance, dtype=float)
                 if Q.shape != (3, 3) or not np.all(np.isfinite(Q)) or np.any(np.linalg.eigvalsh(0.5 * (Q + Q.T)) < 0):
                     raise InputError(f"odometry covariance must be a 3×3 positive semi-definite matrix, got {Q!r}")
-            # the pose rows and columns of the base move with F_x; so do those of the pending term
-            F_x = predict(self.state.x, self.state.base, delta, Q)
-            self.state.transform_pending(POSE, F_x)
+            predict_state(self.state, delta, Q)
         observed = self._observe(scan, report, features)
         matches = self._associate(observed, offset)
         self._update(observed, matches, offset, report)

@@ -5,10 +5,15 @@ The increment ``u = (Δx, Δy, Δφ)`` is expressed in the robot frame at the pr
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from bsslam.config import MotionNoiseConfig
 from bsslam.se2 import compose, compose_jacobians
+
+if TYPE_CHECKING:
+    from bsslam.slam.state import JointState
 
 
 def motion_noise(delta: np.ndarray, cfg: MotionNoiseConfig) -> np.ndarray:
@@ -26,7 +31,7 @@ def predict(x: np.ndarray, P: np.ndarray, delta: np.ndarray, Q: np.ndarray) -> n
 
     Only the pose block and the pose rows/columns change:
     ``P_rr ← F_x P_rr F_xᵀ + F_u Q F_uᵀ``, ``P_rm ← F_x P_rm`` — never the full F of (32).
-    A caller that keeps part of P elsewhere (a pending low-rank term) applies F_x to it.
+    The filter's :class:`JointState` is predicted by :func:`predict_state`.
     """
     F_x, F_u = compose_jacobians(x[:3], delta)
     x[:3] = compose(x[:3], delta)
@@ -35,4 +40,15 @@ def predict(x: np.ndarray, P: np.ndarray, delta: np.ndarray, Q: np.ndarray) -> n
     P[:3, 3:] = P_rm
     P[3:, :3] = P_rm.T
     P[:3, :3] = 0.5 * (P_rr + P_rr.T)
+    return F_x
+
+
+def predict_state(state: JointState, delta: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """:func:`predict` on the filter's state, in place: the pose, and P through
+    :meth:`JointState.transform_pose` (the pose's rows of P are kept apart from the deferred
+    update, so this is O(n) at most). Returns F_x (3, 3)."""
+    x = state.x
+    F_x, F_u = compose_jacobians(x[:3], delta)
+    x[:3] = compose(x[:3], delta)
+    state.transform_pose(F_x, F_u @ Q @ F_u.T)
     return F_x

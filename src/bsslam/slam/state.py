@@ -10,22 +10,31 @@ Storage grows with amortised capacity (doubling), so adding a feature costs the 
 new rows and columns only, not a reallocation of ``P``.
 
 The EKF update ``P ← P − Z Zᵀ`` (Z = P[:, cols] W, rank k ≈ 10–90 per scan) is deferred,
-and stored compressed. The state keeps a base matrix, a basis B (n, a) and a small PSD
-matrix G (a, a) with ``P = base − B G Bᵀ``. When an update touches the state index j for
-the first time since the last fold, the column ``base[:, j]`` joins the basis; then
-``P[:, cols] = B C`` for a small coefficient matrix C, so the update only adds
-``(C W)(C W)ᵀ`` to G. Successive scans see mostly the same walls, so the basis grows by far
-less than the rank of each update (this is the compressed filter of Guivant and Nebot, with
-the active set found on the fly). The pending term is folded into the base (the one O(n²·a)
-pass, where the arithmetic of the whole O(n²) update now happens) only when the basis is
-full. Everything the filter reads per scan (rows, columns, blocks of P, the pose
-covariance) is served exactly as base − B G Bᵀ on those entries.
+and stored compressed (the compressed filter of Guivant and Nebot, with the active set
+found on the fly). The entries are of two kinds:
 
-A basis column stays equal to its base column under the row operations the filter applies
-to both (prediction on the pose rows, an extension's T, new entries that are linear in old
-ones, removal). Operations that change a base column otherwise (the prediction's Q on the
-pose, an extension's T on its own columns, new entries with a given cross covariance) only
-unregister it: it joins the basis again, as a new column, when it is next updated.
+* **eager** entries, the pose and the entries appended since the last fold: their rows of
+  P are kept exactly, as a small dense block ``P_EE`` among themselves and, against the
+  other entries, as ``P[L, e] = B_L K[:, e]`` with a coefficient matrix K (a, |E|);
+* **lazy** entries (L), all others: ``P_LL = base − B G Bᵀ`` with a base matrix, a basis
+  B (n, a, zero on eager rows) and a small PSD matrix G (a, a).
+
+When an update touches a lazy index j for the first time since the last fold, the column
+``base[L, j]`` joins the basis; then ``P[L, cols] = B_L C`` for a small coefficient matrix C,
+so the update changes only G (by (C W)(C W)ᵀ), K and P_EE: no O(n) work. A prediction
+changes only the pose's rows of P_EE and its columns of K, and new features enter as
+eager entries whose K columns are linear in those of the entries they depend on, so
+neither adds to the basis: it grows only by old walls seen again, which after a loop is
+a few columns a scan. The pending term is folded into the base (the one O(n²·a) pass,
+where the arithmetic of the whole O(n²) update now happens) when the basis or the eager
+block is full; then every entry but the pose becomes lazy again. Everything the filter
+reads per scan (rows, columns, blocks of P, the pose covariance) is served exactly from
+these parts.
+
+A registered basis column stays equal to its base column (on the lazy rows) under the row
+operations the filter applies to both (an extension's T on lazy entries, removal).
+Operations that change a base column otherwise only unregister it: it joins the basis
+again, as a new column, when it is next updated.
 """
 
 from __future__ import annotations
@@ -43,14 +52,13 @@ POSE = np.arange(3)
 #: view of a 2048-wide buffer took 6–7 ms, of a 2056-wide one 2.2–3 ms (one core).
 ROW_PAD = 8
 
-
 #: Basis columns of the pending term before it is folded in. Larger means fewer passes over P
-#: but dearer reads (n·a per row read). On intel-rawodom the updates touch 36 state indices
-#: on average; with 256 the basis fills after about 17 updates (43 folds in 717 updates,
-#: against 255 folds of 128 columns when each update's own rank was stored), and the folds'
-#: time went from 9.4 s to 2.7 s (cProfile of the whole run). 128 and 512 were no better
-#: within the run-to-run noise of this machine.
+#: but dearer reads (a² per row read).
 MAX_PENDING = 256
+
+#: Eager entries (the pose and the entries appended since the last fold) before a fold.
+#: Each update costs about |E|²·k for their block and a·|E|·k for their coefficients.
+MAX_EAGER = 192
 
 #: Rows of P per block when the pending factor is folded in: a block row of the product
 #: (b × n doubles) stays in the L2 cache while it is subtracted from P.
@@ -67,17 +75,24 @@ class JointState:
     """
 
     def __init__(self, pose: np.ndarray, pose_covariance: np.ndarray, capacity: int = 64,
-                 max_pending: int = MAX_PENDING):
+                 max_pending: int = MAX_PENDING, max_eager: int = MAX_EAGER):
         capacity = max(int(capacity), 3)
+        if max_pending < 3 or max_eager < 3:
+            raise FilterError("the pending basis and the eager block need room for the pose (≥ 3)")
         self._x = np.zeros(capacity)
         self._P = np.zeros((capacity, capacity + ROW_PAD))
         self._B = np.zeros((capacity, max_pending))   # basis of the pending term, first a columns live
         self._G = np.zeros((max_pending, max_pending))
         self._a = 0
-        self._reg = np.full(capacity, -1, dtype=np.intp)   # basis column equal to base[:, j], or −1
+        self._reg = np.full(capacity, -1, dtype=np.intp)   # basis column equal to base[L, j], or −1
+        self._E = np.zeros(max_eager, dtype=np.intp)       # state index of each eager entry
+        self._epos = np.full(capacity, -1, dtype=np.intp)  # place of entry j among the eager, or −1
+        self._PE = np.zeros((max_eager, max_eager))        # P among the eager entries
+        self._K = np.zeros((max_pending, max_eager))       # P[L, E] = B_L K
+        self._e = 0
         # rows B[j] G of the pending term, kept until G or B change: a scan reads them for
-        # the pose several times, and for the update's columns twice (the gain's P[cols, rows],
-        # then the update itself); each costs a² multiply-adds
+        # the update's columns twice (the gain's P[cols, rows], then the update itself);
+        # each costs a² multiply-adds
         self._bg = np.empty((64, max_pending))
         self._bg_index = np.empty(64, dtype=np.intp)   # the state index of each kept row
         self._bg_slot = np.full(capacity, -1, dtype=np.intp)   # row of _bg holding index j, or −1
@@ -86,6 +101,7 @@ class JointState:
         self._x[:3] = np.asarray(pose, dtype=float)
         C = np.asarray(pose_covariance, dtype=float)
         self._P[:3, :3] = 0.5 * (C + C.T)   # exactly symmetric: rows are served as columns
+        self._reset()
 
     # -- views ---------------------------------------------------------------------------
     @property
@@ -101,14 +117,19 @@ class JointState:
 
     @property
     def base(self) -> np.ndarray:
-        """(n, n) the covariance less the pending term B G Bᵀ (a view). Only for code that
-        transforms rows and columns of P and then calls :meth:`transform_pending`."""
+        """(n, n) the base of the lazy entries' covariance (a view; see the module docstring).
+        Only exact after :meth:`fold`."""
         return self._P[: self.size, : self.size]
 
     @property
     def pending_rank(self) -> int:
-        """Columns of the pending term's basis (0 when nothing is pending)."""
+        """Columns of the pending term's basis (3, the pose's, right after a fold)."""
         return self._a
+
+    @property
+    def eager_count(self) -> int:
+        """Entries whose rows of P are kept exactly (the pose and the newest entries)."""
+        return self._e
 
     @property
     def capacity(self) -> int:
@@ -121,7 +142,27 @@ class JointState:
     @property
     def pose_covariance(self) -> np.ndarray:
         """(3, 3) covariance of the pose (a new array)."""
-        return self.block(POSE, POSE)
+        return self._PE[:3, :3].copy()
+
+    # -- the parts of P -------------------------------------------------------------------
+    def _reset(self) -> None:
+        """The pending term is empty and the base exact: only the pose stays eager, with the
+        base's pose columns as the first three basis columns (P[L, pose] = B_L I)."""
+        n, a, e = self.size, self._a, self._e
+        self._G[:a, :a] = 0.0
+        self._K[:a, :e] = 0.0
+        self._reg[:n] = -1
+        self._epos[:n] = -1
+        self._E[:3] = POSE
+        self._epos[:3] = POSE
+        self._e = 3
+        self._PE[:3, :3] = self._P[:3, :3]
+        self._B[:n, :3] = self._P[:3, :n].T     # base is symmetric: its pose rows are its pose columns
+        self._B[:3, :3] = 0.0                   # eager rows of the basis are zero
+        self._K[:3, :3] = np.eye(3)
+        self._a = 3
+        self._pending = False   # base is P: a fold would change nothing
+        self._forget_pending_rows()
 
     def _pending_rows(self, rows: np.ndarray) -> np.ndarray:
         """(r, a) B[rows] G: the pending term's rows are this times Bᵀ (a new array)."""
@@ -148,18 +189,65 @@ class JointState:
         self._bg_slot[self._bg_index[: self._bg_count]] = -1
         self._bg_count = 0
 
-    def _widen(self, a: int) -> None:
-        """The basis grows to ``a`` columns (new columns of B written by the caller). G is
-        zero outside its live block, so the kept rows B[j] G only gain zero entries."""
-        self._bg[: self._bg_count, self._a : a] = 0.0
-        self._a = a
+    def _join(self, cols: np.ndarray) -> bool:
+        """Register the lazy, unregistered ``cols`` as basis columns, folding first when the
+        basis has no room. Returns False (nothing registered) when they are more than a
+        whole basis: the caller then works on the folded base."""
+        lazy = cols[self._epos[cols] < 0]
+        joining = np.unique(lazy[self._reg[lazy] < 0])
+        # a basis as wide as the state saves nothing: its fold is as cheap as an update
+        if self._a + joining.shape[0] > min(self._B.shape[1], self.size):
+            self.fold()
+            joining = np.unique(cols[self._epos[cols] < 0])   # all lazy and unregistered now, but the pose
+            if self._a + joining.shape[0] > self._B.shape[1]:
+                return False
+        if joining.shape[0]:
+            a0, a = self._a, self._a + joining.shape[0]
+            n, e = self.size, self._e
+            B = self._B[:n, a0:a]
+            B[:] = self._P[joining, :n].T    # base is symmetric: its rows are its columns
+            B[self._E[:e]] = 0.0              # eager rows of the basis are zero
+            self._reg[joining] = np.arange(a0, a)
+            self._K[a0:a, :e] = 0.0
+            # G is zero outside its live block, so the kept rows B[j] G only gain zero entries
+            self._bg[: self._bg_count, a0:a] = 0.0
+            self._a = a
+        return True
 
+    def _coefficients(self, cols: np.ndarray) -> np.ndarray:
+        """(a, c) C with P[L, cols] = B_L C, for registered lazy or eager ``cols``."""
+        pos = self._epos[cols]
+        eager = pos >= 0
+        a = self._a
+        C = np.empty((a, cols.shape[0]))
+        if eager.any():
+            C[:, eager] = self._K[:a, pos[eager]]
+        lazy = ~eager
+        if lazy.any():
+            lc = cols[lazy]
+            # P[L, j] = base[L, j] − B_L G B[j]ᵀ, base[L, j] a basis column
+            Cl = -self._pending_rows(lc).T
+            Cl[self._reg[lc], np.arange(lc.shape[0])] += 1.0
+            C[:, lazy] = Cl
+        return C
+
+    def _eager_rows(self, cols: np.ndarray) -> np.ndarray:
+        """(|E|, c) P[E, cols] (a new array)."""
+        pos = self._epos[cols]
+        eager = pos >= 0
+        e, a = self._e, self._a
+        out = np.empty((e, cols.shape[0]))
+        if eager.any():
+            out[:, eager] = self._PE[:e, pos[eager]]
+        lazy = ~eager
+        if lazy.any():
+            out[:, lazy] = (self._B[cols[lazy], :a] @ self._K[:a, :e]).T
+        return out
+
+    # -- reads ---------------------------------------------------------------------------
     def rows(self, rows: np.ndarray) -> np.ndarray:
         """(r, n) ``P[rows, :]`` (a new, C-ordered array)."""
-        out = self.base[rows]
-        if self._a:
-            out -= self._pending_rows(rows) @ self._B[: self.size, : self._a].T
-        return out
+        return self.block(rows, np.arange(self.size))
 
     def columns(self, cols: np.ndarray) -> np.ndarray:
         """(n, c) ``P[:, cols]`` (a new array, Fortran-ordered). P is kept exactly symmetric,
@@ -170,24 +258,52 @@ class JointState:
     def columns_times(self, cols: np.ndarray, v: np.ndarray) -> np.ndarray:
         """(n,) ``P[:, cols] v`` for (c,) ``v``, without gathering ``P[:, cols]``: n·(c + a)
         multiply-adds instead of n·c·a."""
-        out = v @ self.base[cols]          # base is symmetric: its rows are its columns
-        if self._a:
-            a = self._a
-            out -= self._B[: self.size, :a] @ (self._pending_rows(cols).T @ v)
+        cols = np.asarray(cols, dtype=np.intp)
+        pos = self._epos[cols]
+        eager = pos >= 0
+        lazy = ~eager
+        n, a, e = self.size, self._a, self._e
+        lc, vl = cols[lazy], v[lazy]
+        out = vl @ self._P[lc, :n]               # base is symmetric: its rows are its columns
+        # the lazy rows: − B G B[lc]ᵀ v_L + B K[:, eager cols] v_E (zero on the eager rows)
+        u = self._K[:a, pos[eager]] @ v[eager]
+        if lc.shape[0]:
+            u -= self._pending_rows(lc).T @ vl
+        out += self._B[:n, :a] @ u
+        # the eager rows, exactly
+        out[self._E[:e]] = self._K[:a, :e].T @ (self._B[lc, :a].T @ vl) + self._PE[:e, pos[eager]] @ v[eager]
         return out
 
     def block(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """(r, c) ``P[np.ix_(rows, cols)]`` (a new array); indices of the live state."""
-        out = take_block(self.base, np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp))
-        if self._a:
-            out -= self._pending_rows(rows) @ self._B[cols, : self._a].T
-        return out
+        rows = np.asarray(rows, dtype=np.intp)
+        cols = np.asarray(cols, dtype=np.intp)
+        pr, pc = self._epos[rows], self._epos[cols]
+        er, ec = pr >= 0, pc >= 0
+        a = self._a
+        if er.all():     # the pose's rows, say: no base, no G
+            out = (self._B[cols, :a] @ self._K[:a, pr]).T
+        else:
+            out = take_block(self._P, rows, cols)
+            out -= self._pending_rows(rows) @ self._B[cols, :a].T
+            if ec.any():
+                out[:, ec] = self._B[rows, :a] @ self._K[:a, pc[ec]]
+            if er.any():
+                out[er] = (self._B[cols, :a] @ self._K[:a, pr[er]]).T
+        if ec.any() and er.any():
+            ri, ci = np.flatnonzero(er), np.flatnonzero(ec)
+            out[np.ix_(ri, ci)] = take_block(self._PE, pr[ri], pc[ci])
+        return np.ascontiguousarray(out)
 
     def diagonal(self, rows: np.ndarray) -> np.ndarray:
         """(r,) ``P[rows, rows]`` (a new array)."""
-        out = self.base[rows, rows]
-        if self._a:
-            out -= np.einsum("ij,ij->i", self._pending_rows(rows), self._B[rows, : self._a])
+        rows = np.asarray(rows, dtype=np.intp)
+        out = self._P[rows, rows]
+        out -= np.einsum("ij,ij->i", self._pending_rows(rows), self._B[rows, : self._a])
+        pos = self._epos[rows]
+        eager = pos >= 0
+        if eager.any():
+            out[eager] = self._PE[pos[eager], pos[eager]]
         return out
 
     # -- the update ----------------------------------------------------------------------
@@ -195,68 +311,115 @@ class JointState:
         """P ← P − Z Zᵀ with Z = P[:, cols] W, for cols (c,) and W (c, k): the EKF update
         (W = Hᵀ L⁻ᵀ), deferred and compressed (see the module docstring).
 
-        Costs O(a²·(c + k)) when the touched columns are in the basis, plus n·c copied for
-        each column that joins it; the O(n²·a) fold happens when the basis is full."""
+        Costs O(a²·k + a·|E|·k + |E|²·k) when the touched lazy columns are in the basis,
+        plus n·c copied for each column that joins it; the O(n²·a) fold happens when the
+        basis is full."""
         cols = np.asarray(cols, dtype=np.intp)
         W = np.asarray(W, dtype=float)
         if W.shape[0] != cols.shape[0]:
             raise FilterError(f"column update: {cols.shape[0]} columns but W has {W.shape[0]} rows")
-        joining = np.unique(cols[self._reg[cols] < 0])
-        # a basis as wide as the state saves nothing: its fold is as cheap as an update
-        if self._a + joining.shape[0] > min(self._B.shape[1], self.size):
-            self.fold()
-            joining = np.unique(cols)
-        if joining.shape[0] > self._B.shape[1]:   # wider than the whole basis: straight into the base
+        if not self._join(cols):   # wider than the whole basis: straight into the folded base
             _subtract_outer(self.base, self.columns(cols) @ W)
+            self._reset()
             return
-        a0, a = self._a, self._a + joining.shape[0]
-        n = self.size
-        self._B[:n, a0:a] = self.base[joining].T    # base is symmetric: its rows are its columns
-        self._reg[joining] = np.arange(a0, a)
-        self._widen(a)
-        # P[:, cols] = base[:, cols] − B G B[cols]ᵀ = B C: base[:, cols] is a basis column
-        C = -self._pending_rows(cols).T
-        C[self._reg[cols], np.arange(cols.shape[0])] += 1.0
-        E = C @ W
-        self._G[:a, :a] += E @ E.T
+        a, e = self._a, self._e
+        Ec = self._coefficients(cols) @ W        # Z_L = B_L Ec
+        Ze = self._eager_rows(cols) @ W          # Z_E, exactly
+        self._G[:a, :a] += Ec @ Ec.T
+        self._K[:a, :e] -= Ec @ Ze.T
+        self._PE[:e, :e] -= Ze @ Ze.T
+        self._pending = True
         self._forget_pending_rows()
 
     def fold(self) -> None:
-        """Fold the pending update into the base: base ← base − B G Bᵀ, basis emptied."""
-        a, n = self._a, self.size
-        if a:
-            B = self._B[:n, :a]
-            _subtract_outer(self.base, B @ self._G[:a, :a], B)
-            self._G[:a, :a] = 0.0
-            self._reg[:n] = -1
-            self._a = 0
-            self._forget_pending_rows()
+        """Fold the pending update into the base: base ← P, basis emptied, every entry
+        but the pose lazy again."""
+        if not self._pending:
+            return
+        n, a, e = self.size, self._a, self._e
+        eager = self._E[:e].copy()
+        R = self.block(eager, np.arange(n))      # the eager rows, exactly
+        B = self._B[:n, :a]
+        _subtract_outer(self.base, B @ self._G[:a, :a], B)    # exact on the lazy block
+        self._P[eager, :n] = R
+        self._P[:n, eager] = R.T
+        self._reset()
+
+    def transform_pose(self, F: np.ndarray, Q: np.ndarray) -> None:
+        """The prediction's P ← A P Aᵀ + Q on the pose, A the identity with F (3, 3) on
+        the pose block, Q (3, 3): O(|E| + a), the pose being eager."""
+        e, a = self._e, self._a
+        rows = F @ self._PE[:3, :e]
+        self._PE[:3, :e] = rows
+        self._PE[:e, :3] = rows.T
+        block = rows[:, :3] @ F.T + Q
+        self._PE[:3, :3] = 0.5 * (block + block.T)
+        self._K[:a, :3] = self._K[:a, :3] @ F.T
+        self._pending = True
 
     def transform(self, idx: np.ndarray, T: np.ndarray) -> None:
-        """x[idx] ← T x[idx] and P ← A P Aᵀ, A the identity with T on the block ``idx``.
+        """x[idx] ← T x[idx] and P ← A P Aᵀ, A the identity with T on the block ``idx``
+        (map entries, never the pose).
 
-        Only the rows and columns ``idx`` change; they are written exactly symmetric (the
-        rows T P once, copied transposed to the columns; the block T P Tᵀ symmetrised).
+        Only the rows and columns ``idx`` change; they are written exactly symmetric.
         """
-        x, P = self.x, self.base
+        idx = np.asarray(idx, dtype=np.intp)
+        x = self.x
         x[idx] = T @ x[idx]
+        if (self._epos[idx] >= 0).any() and not self._promote(idx):
+            self.fold()       # no room among the eager: all of idx lazy
+        if self._epos[idx[0]] >= 0:     # all of idx, promoted
+            pos = self._epos[idx]
+            e, a = self._e, self._a
+            rows = T @ self._PE[pos, :e]
+            self._PE[pos, :e] = rows
+            self._PE[:e, pos] = rows.T
+            block = rows[:, pos] @ T.T
+            self._PE[np.ix_(pos, pos)] = 0.5 * (block + block.T)
+            self._K[:a, pos] = self._K[:a, pos] @ T.T
+            self._pending = True
+            return
+        # lazy entries: the base's rows and columns, and the basis rows (which carry P[idx, E])
+        P = self.base
         rows = T @ P[idx, :]
         P[idx, :] = rows
         P[:, idx] = rows.T
         block = rows[:, idx] @ T.T
         P[np.ix_(idx, idx)] = 0.5 * (block + block.T)
-        self.transform_pending(idx, T)
-
-    def transform_pending(self, idx: np.ndarray, T: np.ndarray) -> None:
-        """Carry A P Aᵀ (A as in :meth:`transform`) through the pending term, B[idx] ← T B[idx],
-        for code that has transformed the rows and columns ``idx`` of :attr:`base` itself
-        (and possibly added to them, as the prediction adds Q): those base columns leave
-        the basis."""
-        if self._a:
-            B = self._B[:, : self._a]
-            B[idx] = T @ B[idx]
+        B = self._B[:, : self._a]
+        B[idx] = T @ B[idx]
         self._reg[idx] = -1
         self._forget_pending_rows()
+
+    def _promote(self, idx: np.ndarray) -> bool:
+        """Make the lazy ones of ``idx`` eager (their rows of P kept exactly), so that all of
+        ``idx`` is; False if there is no room (the basis or the eager block is full)."""
+        idx = np.unique(idx)
+        if not self._join(idx):
+            return False
+        idx = idx[self._epos[idx] < 0]    # (all of them if the join folded)
+        a, e, m = self._a, self._e, idx.shape[0]
+        if e + m > self._PE.shape[0]:
+            return False
+        if not m:
+            return True
+        K = self._coefficients(idx)                      # P[L, idx] = B_L K
+        cross = self._eager_rows(idx)                    # P[E, idx]
+        own = self.block(idx, idx)
+        own = 0.5 * (own + own.T)
+        pos = np.arange(e, e + m)
+        self._PE[:e, pos] = cross
+        self._PE[pos, :e] = cross.T
+        self._PE[np.ix_(pos, pos)] = own
+        self._K[:a, pos] = K
+        self._E[pos] = idx
+        self._epos[idx] = pos
+        self._reg[idx] = -1
+        self._B[idx, :] = 0.0
+        self._e = e + m
+        self._pending = True
+        self._forget_pending_rows()
+        return True
 
     # -- growth --------------------------------------------------------------------------
     def _reserve(self, new_size: int) -> None:
@@ -270,16 +433,19 @@ class JointState:
         P = np.zeros((capacity, capacity + ROW_PAD))
         B = np.zeros((capacity, self._B.shape[1]))
         reg = np.full(capacity, -1, dtype=np.intp)
+        epos = np.full(capacity, -1, dtype=np.intp)
         x[:n] = self.x
         P[:n, :n] = self.base
         B[:n, : self._a] = self._B[:n, : self._a]
         reg[:n] = self._reg[:n]
+        epos[:n] = self._epos[:n]
         self._forget_pending_rows()
-        self._x, self._P, self._B, self._reg = x, P, B, reg
+        self._x, self._P, self._B, self._reg, self._epos = x, P, B, reg, epos
         self._bg_slot = np.full(capacity, -1, dtype=np.intp)
 
     def append(self, mean: np.ndarray, cross: np.ndarray, block: np.ndarray) -> np.ndarray:
-        """Augment the state with k new entries of given covariance.
+        """Augment the state with k new entries of given covariance (folds the pending
+        update first: meant for building a state, not for every scan).
 
         Args:
             mean: (k,) their values.
@@ -292,16 +458,14 @@ class JointState:
         k, n = mean.shape[0], self.size
         if cross.shape != (k, n) or block.shape != (k, k):
             raise FilterError(f"append: cross {cross.shape} / block {block.shape} do not fit k={k}, n={n}")
+        self.fold()
         self._reserve(n + k)
         self._x[n : n + k] = mean
-        # P = base − B G Bᵀ with zero rows of B for the new entries: the base holds them
-        # exactly, and no base column is a basis column any more (its new rows are not B's)
         self._P[n : n + k, :n] = cross
         self._P[:n, n : n + k] = cross.T
         self._P[n : n + k, n : n + k] = 0.5 * (block + block.T)
-        self._B[n : n + k, : self._a] = 0.0
-        self._reg[: n + k] = -1
         self.size = n + k
+        self._reset()   # the new lazy entries' pose columns join the basis with the others
         return np.arange(n, n + k)
 
     def append_dependent(self, mean: np.ndarray, cols: np.ndarray, J: np.ndarray,
@@ -309,8 +473,8 @@ class JointState:
         """Augment the state with k entries v = J x[cols] + w, w independent of the state
         with covariance ``noise``: Cov(v, x) = J P[cols, :], Cov(v) = J P_cc Jᵀ + noise.
 
-        Both parts of P = base − B G Bᵀ get the new rows by the same map (base rows J base[cols],
-        basis rows J B[cols]), so the pending term carries over and the basis stays valid.
+        They enter as eager entries: P[L, v] = B_L C Jᵀ with P[L, cols] = B_L C, so neither
+        the base nor the basis changes (only the lazy ``cols`` not yet in the basis join it).
 
         Args:
             mean: (k,) their values; cols: (c,) state indices; J: (k, c); noise: (k, k).
@@ -322,18 +486,32 @@ class JointState:
         k, n = mean.shape[0], self.size
         if J.shape != (k, cols.shape[0]) or noise.shape != (k, k):
             raise FilterError(f"append: J {J.shape} / noise {noise.shape} do not fit k={k}, c={cols.shape[0]}")
+        if self._e + k > self._PE.shape[0]:
+            self.fold()
+        if self._e + k > self._PE.shape[0] or not self._join(cols):   # too many for the eager block
+            self.fold()
+            cross = J @ self.rows(cols)
+            return self.append(mean, cross, cross[:, cols] @ J.T + noise)
+        a, e = self._a, self._e
+        K = self._coefficients(cols) @ J.T        # (a, k)
+        cross = J @ self._eager_rows(cols).T      # (k, |E|)
+        own = J @ self.block(cols, cols) @ J.T + noise
         self._reserve(n + k)
         self._x[n : n + k] = mean
-        cross = J @ self.base[cols]                        # (k, n) rows: base is symmetric
-        block = cross[:, cols] @ J.T + noise
-        self._P[n : n + k, :n] = cross
-        self._P[:n, n : n + k] = cross.T
-        self._P[n : n + k, n : n + k] = 0.5 * (block + block.T)
-        if self._a:
-            self._B[n : n + k, : self._a] = J @ self._B[cols, : self._a]
-        self._reg[n : n + k] = -1
+        new = np.arange(n, n + k)
+        pos = np.arange(e, e + k)
+        self._B[new, :] = 0.0
+        self._reg[new] = -1
+        self._PE[pos, :e] = cross
+        self._PE[:e, pos] = cross.T
+        self._PE[np.ix_(pos, pos)] = 0.5 * (own + own.T)
+        self._K[:a, pos] = K
+        self._E[pos] = new
+        self._epos[new] = pos
+        self._e = e + k
         self.size = n + k
-        return np.arange(n, n + k)
+        self._pending = True
+        return new
 
     def remove(self, indices: np.ndarray) -> np.ndarray:
         """Delete state entries (never the pose). O(n²), meant to be rare.
@@ -351,6 +529,16 @@ class JointState:
         keep[indices] = False
         kept = np.flatnonzero(keep)
         m = kept.size
+        # eager entries leave the eager block
+        e = self._e
+        stay = keep[self._E[:e]]
+        if not stay.all():
+            sp = np.flatnonzero(stay)
+            self._PE[: sp.size, : sp.size] = self._PE[np.ix_(sp, sp)]
+            self._K[: self._a, : sp.size] = self._K[: self._a, sp]
+            self._K[: self._a, sp.size : e] = 0.0
+            self._E[: sp.size] = self._E[sp]
+            self._e = sp.size
         # Compact in place, moving only what lies after the first removed entry: pruned
         # splines are usually the newest, at the end of the state, so this is mostly a
         # shrink. (Gathering P[kept][:, kept] copied all of P twice: 30 ms at n = 2800.)
@@ -363,10 +551,14 @@ class JointState:
             self._B[first:m, : self._a] = self._B[tail, : self._a]
             self._reg[first:m] = self._reg[tail]
         self._reg[m:n] = -1
-        self._forget_pending_rows()
-        self.size = m
         mapping = np.full(n, -1)
         mapping[kept] = np.arange(m)
+        e = self._e
+        self._E[:e] = mapping[self._E[:e]]
+        self._epos[:n] = -1
+        self._epos[self._E[:e]] = np.arange(e)
+        self._forget_pending_rows()
+        self.size = m
         return mapping
 
 
