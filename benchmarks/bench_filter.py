@@ -63,7 +63,7 @@ BINS = [0, 250, 500, 750, 1000, 1250, 1500, 2000, 3000, 10**9]
 #   the blocks the gains, gates and association read, and P[:, cols]·v, the mean correction of
 #   the whole state. They grow with the state (n rows) and with the deferred term's width.
 # - "S/gain" is the rest of the gains: S = H P Hᵀ + R, its factorisation and the solves.
-# - "covariance update" is the deferred low-rank update and, every few scans, the O(n²) fold of
+# - "covariance update" is the deferred low-rank update and, every few dozen scans, the O(n²) fold of
 #   the deferred term into P (JointState), so its mean, not its median, is its cost per scan.
 STAGES = {
     "predict": [(filter_module, "predict_state")],
