@@ -64,7 +64,9 @@ BINS = [0, 250, 500, 750, 1000, 1250, 1500, 2000, 3000, 10**9]
 #   the whole state. They grow with the state (n rows) and with the deferred term's width.
 # - "S/gain" is the rest of the gains: S = H P Hᵀ + R, its factorisation and the solves.
 # - "covariance update" is the deferred low-rank update and, every few dozen scans, the O(n²) fold of
-#   the deferred term into P (JointState), so its mean, not its median, is its cost per scan.
+#   the deferred term into P (JointState), so its mean, not its median, is its cost per scan. A
+#   fold counts here wherever it happens: in an update, or when a new spline finds the state's
+#   exact block full (inside "enlarge" otherwise).
 STAGES = {
     "predict": [(filter_module, "predict_state")],
     "segment+fit": [(SplineSLAM, "_observe")],
@@ -75,7 +77,7 @@ STAGES = {
     "S/gain": [(ekf_module.StackedGain, "__init__"), (ekf_module.StackedGain, "correction"),
                (ekf_module.StackedGain, "state_correction"), (ekf_module.StackedGain, "pose_variances"),
                (ekf_module.StackedGain, "posterior_variances"), (filter_module, "innovation_variances")],
-    "covariance update": [(ekf_module.StackedGain, "update_covariance")],
+    "covariance update": [(ekf_module.StackedGain, "update_covariance"), (JointState, "fold")],
     "enlarge": [(SplineSLAM, "_enlarge")],
 }
 
