@@ -347,14 +347,15 @@ class JointState:
 
     def transform_pose(self, F: np.ndarray, Q: np.ndarray) -> None:
         """The prediction's P ← A P Aᵀ + Q on the pose, A the identity with F (3, 3) on
-        the pose block, Q (3, 3): O(|E| + a), the pose being eager."""
+        the pose block, Q (3, 3): O(|E| + a), the pose being eager (its places are 0, 1, 2)."""
+        self._transform_eager(POSE, F, Q)
+
+    def _transform_eager(self, pos: np.ndarray, T: np.ndarray, Q: np.ndarray | None = None) -> None:
+        """P ← A P Aᵀ (+ Q on the block) for eager entries at places ``pos``: their rows of the
+        eager block, and their columns of K (P[L, e] = B_L K[:, e] becomes P[L, idx] Tᵀ)."""
         e, a = self._e, self._a
-        rows = F @ self._PE[:3, :e]
-        self._PE[:3, :e] = rows
-        self._PE[:e, :3] = rows.T
-        block = rows[:, :3] @ F.T + Q
-        self._PE[:3, :3] = 0.5 * (block + block.T)
-        self._K[:a, :3] = self._K[:a, :3] @ F.T
+        _congruence(self._PE[:e, :e], pos, T, Q)
+        self._K[:a, pos] = self._K[:a, pos] @ T.T
         self._pending = True
 
     def transform(self, idx: np.ndarray, T: np.ndarray) -> None:
@@ -369,23 +370,10 @@ class JointState:
         if (self._epos[idx] >= 0).any() and not self._promote(idx):
             self.fold()       # no room among the eager: all of idx lazy
         if self._epos[idx[0]] >= 0:     # all of idx, promoted
-            pos = self._epos[idx]
-            e, a = self._e, self._a
-            rows = T @ self._PE[pos, :e]
-            self._PE[pos, :e] = rows
-            self._PE[:e, pos] = rows.T
-            block = rows[:, pos] @ T.T
-            self._PE[np.ix_(pos, pos)] = 0.5 * (block + block.T)
-            self._K[:a, pos] = self._K[:a, pos] @ T.T
-            self._pending = True
+            self._transform_eager(self._epos[idx], T)
             return
         # lazy entries: the base's rows and columns, and the basis rows (which carry P[idx, E])
-        P = self.base
-        rows = T @ P[idx, :]
-        P[idx, :] = rows
-        P[:, idx] = rows.T
-        block = rows[:, idx] @ T.T
-        P[np.ix_(idx, idx)] = 0.5 * (block + block.T)
+        _congruence(self.base, idx, T)
         B = self._B[:, : self._a]
         B[idx] = T @ B[idx]
         self._reg[idx] = -1
@@ -560,6 +548,20 @@ class JointState:
         self._forget_pending_rows()
         self.size = m
         return mapping
+
+
+def _congruence(M: np.ndarray, idx: np.ndarray, T: np.ndarray, Q: np.ndarray | None = None) -> None:
+    """M ← A M Aᵀ in place (plus Q on the block ``idx``), for a symmetric (n, n) M and A the
+    identity with (k, k) T on the block ``idx``. Only the rows and columns ``idx`` change;
+    they are written exactly symmetric (the rows T M once, copied transposed to the
+    columns; the block T M Tᵀ symmetrised)."""
+    rows = T @ M[idx, :]
+    M[idx, :] = rows
+    M[:, idx] = rows.T
+    block = rows[:, idx] @ T.T
+    if Q is not None:
+        block = block + Q
+    M[np.ix_(idx, idx)] = 0.5 * (block + block.T)
 
 
 def _subtract_outer(P: np.ndarray, D: np.ndarray, E: np.ndarray | None = None, block: int = FOLD_BLOCK) -> None:
