@@ -476,8 +476,8 @@ class JointState:
             raise FilterError(f"append: J {J.shape} / noise {noise.shape} do not fit k={k}, c={cols.shape[0]}")
         if self._e + k > self._PE.shape[0]:
             self.fold()
-        if self._e + k > self._PE.shape[0] or not self._join(cols):   # too many for the eager block
-            self.fold()
+        if self._e + k > self._PE.shape[0] or not self._join(cols):
+            # more than the eager block or the basis holds: lazy entries, appended to the base
             cross = J @ self.rows(cols)
             return self.append(mean, cross, cross[:, cols] @ J.T + noise)
         a, e = self._a, self._e
