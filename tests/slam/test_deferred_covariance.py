@@ -5,7 +5,8 @@ and folding keeps P exactly symmetric. The basis always holds the pose's three c
 
 import numpy as np
 
-from bsslam.slam.motion import predict, predict_state
+from bsslam.slam.motion import predict_state
+from motion_oracle import predict
 from bsslam.slam.state import POSE, JointState
 
 

@@ -5,7 +5,8 @@ import pytest
 
 from bsslam.slam.ekf import StackedGain, innovation_variances
 from bsslam.se2 import compose_jacobians
-from bsslam.slam.motion import predict
+from bsslam.slam.motion import predict_state
+from motion_oracle import predict
 from bsslam.slam.state import JointState
 
 
@@ -129,13 +130,17 @@ def test_predict_touches_only_pose_rows_and_columns():
     delta = np.array([0.4, 0.1, 0.2])
     Q = np.diag([1e-4, 2e-4, 3e-4])
     pose0 = state.x[:3].copy()
-    predict(state.x, state.P, delta, Q)
+    x, dense = state.x.copy(), P0.copy()
+    predict_state(state, delta, Q)
+    predict(x, dense, delta, Q)      # the dense oracle the other tests mirror the state with
     F_x, F_u = compose_jacobians(pose0, delta)
     F = np.eye(12)
     F[:3, :3] = F_x
     expected = F @ P0 @ F.T
     expected[:3, :3] += F_u @ Q @ F_u.T
     np.testing.assert_allclose(state.P, expected, atol=1e-12)
+    np.testing.assert_allclose(dense, expected, atol=1e-12)
+    np.testing.assert_array_equal(state.x, x)
 
 
 def test_growth_and_removal_keep_values():

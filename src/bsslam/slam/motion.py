@@ -26,27 +26,13 @@ def motion_noise(delta: np.ndarray, cfg: MotionNoiseConfig) -> np.ndarray:
     return np.diag([sx * sx, sy * sy, sphi * sphi])
 
 
-def predict(x: np.ndarray, P: np.ndarray, delta: np.ndarray, Q: np.ndarray) -> np.ndarray:
-    """EKF prediction in place on the live state views; returns F_x (3, 3).
-
-    Only the pose block and the pose rows/columns change:
-    ``P_rr ← F_x P_rr F_xᵀ + F_u Q F_uᵀ``, ``P_rm ← F_x P_rm`` — never the full F of (32).
-    The filter's :class:`JointState` is predicted by :func:`predict_state`.
-    """
-    F_x, F_u = compose_jacobians(x[:3], delta)
-    x[:3] = compose(x[:3], delta)
-    P_rm = F_x @ P[:3, 3:]
-    P_rr = F_x @ P[:3, :3] @ F_x.T + F_u @ Q @ F_u.T
-    P[:3, 3:] = P_rm
-    P[3:, :3] = P_rm.T
-    P[:3, :3] = 0.5 * (P_rr + P_rr.T)
-    return F_x
-
-
 def predict_state(state: JointState, delta: np.ndarray, Q: np.ndarray) -> np.ndarray:
-    """:func:`predict` on the filter's state, in place: the pose, and P through
-    :meth:`JointState.transform_pose` (the pose's rows of P are kept apart from the deferred
-    update, so this is O(n) at most). Returns F_x (3, 3)."""
+    """EKF prediction of the filter's state, in place; returns F_x (3, 3).
+
+    The pose moves by ``delta``, and only the pose block and the pose rows/columns of P
+    change: ``P_rr ← F_x P_rr F_xᵀ + F_u Q F_uᵀ``, ``P_rm ← F_x P_rm`` — never the full F of
+    (32). The state keeps the pose's rows apart from its deferred update
+    (:meth:`JointState.transform_pose`), so this is O(n) at most."""
     x = state.x
     F_x, F_u = compose_jacobians(x[:3], delta)
     x[:3] = compose(x[:3], delta)
