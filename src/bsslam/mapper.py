@@ -1,0 +1,450 @@
+"""The whole SLAM pipeline as a streaming object: feed it one scan at a time.
+
+:class:`Mapper` is what ``bsslam run`` does, scan by scan: the laser-odometry front end
+(:class:`~bsslam.frontend.LaserOdometry`) turns the odometry into scan-matched increments,
+the update schedule (:class:`~bsslam.frontend.UpdateSchedule`) picks the scans the filter
+(:class:`~bsslam.slam.SplineSLAM`) processes, and :meth:`Mapper.finish` runs the second
+pass (:func:`relocalize`) and returns a :class:`RunResult`.
+:func:`bsslam.pipeline.run_dataset` is a loop over it.
+
+Two passes. The first is the online filter: each scan's pose is the filter's estimate at
+that moment. A filter never revises a past pose, so the poses before a loop closure keep
+the drift the closure removed from the map. The second pass (``SLAMConfig.relocalize``)
+localises every scan again in the final map, held fixed, from the same front-end
+increments: the trajectory then agrees with the map the whole run built.
+
+The mapper calls a viewer after every scan and at the end; the default one does nothing,
+so the loop never branches on "visualise?".
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Protocol
+
+import numpy as np
+from threadpoolctl import ThreadpoolController
+
+from bsslam.config import SLAMConfig
+from bsslam.dataset import Frame, SkipCounter
+from bsslam.errors import InputError
+from bsslam.frontend import LaserOdometry, UpdateSchedule
+from bsslam.scan import LaserScan
+from bsslam.se2 import between, compose, compose_with_covariance
+from bsslam.slam import MapSpline, SplineSLAM
+from bsslam.trajectory import Trajectory
+from bsslam.viz.null_viewer import NullViewer
+
+Progress = Callable[[int, int | None], None]
+
+
+def _no_progress(done: int, total: int | None) -> None:
+    return None
+
+
+@dataclass
+class RunResult:
+    """Everything a run produced.
+
+    Attributes:
+        name: the dataset's name.
+        estimate: the online filter's trajectory with per-step pose covariances (one pose
+            per scan): each pose as the filter knew it then, its covariance the pose block
+            of the joint covariance.
+        relocalized: the same scans localised in the final map (second pass), with pose
+            covariances relative to that map; None when ``relocalize`` is off or the run
+            was interrupted.
+        odometry: the dead-reckoning trajectory at the same stamps.
+        frontend: the front end's own trajectory (its increments chained, no map), or None
+            when the front end is off.
+        ground_truth: the dataset's reference, if it has one.
+        map: the final map splines with their covariance blocks.
+        wall_time_s: time spent in the filter (s), both passes, excluding reading the input.
+        relocalize_time_s: of which the second pass (s).
+        step_times_s: (N,) time spent on each scan (s): front end and, where it ran, filter.
+        state_sizes: (N,) state dimension after each step.
+        totals: summed counters of the step reports (beams used/dropped, new/extended splines …).
+        nis: (N,) NIS of each step's update and (N,) its degrees of freedom.
+        points: (k, 2) world scan points at the final poses (subsampled) for pictures.
+        skipped: the reader's skipped-input counter.
+        scans: one (LaserScan, laser_offset (3,)) per frame, aligned with ``trajectory``.
+        interrupted: the run was ended early (KeyboardInterrupt, or SIGTERM turned into
+            one): the arrays hold the scans processed until then and the second pass did
+            not run.
+    """
+
+    name: str
+    estimate: Trajectory
+    relocalized: Trajectory | None
+    odometry: Trajectory
+    frontend: Trajectory | None
+    ground_truth: Trajectory | None
+    map: list[MapSpline]
+    wall_time_s: float
+    step_times_s: np.ndarray
+    state_sizes: np.ndarray
+    totals: dict[str, int]
+    nis: np.ndarray
+    nis_dof: np.ndarray
+    points: np.ndarray
+    skipped: SkipCounter = field(default_factory=SkipCounter)
+    scans: list = field(default_factory=list)
+
+    relocalize_time_s: float = 0.0
+    interrupted: bool = False
+
+    @property
+    def steps(self) -> int:
+        return len(self.estimate)
+
+    @property
+    def trajectory(self) -> Trajectory:
+        """The best trajectory: relocalised in the final map when there is one, else online."""
+        return self.relocalized if self.relocalized is not None else self.estimate
+
+
+@dataclass(frozen=True)
+class PoseEstimate:
+    """What :meth:`Mapper.add` returns for one scan.
+
+    Attributes:
+        stamp: the scan's time (s).
+        pose: (3,) the robot's pose (x m, y m, φ rad) in the map frame.
+        covariance: (3, 3) its covariance (m², m·rad, rad²).
+        filter_step: True when the filter processed this scan; else the pose is the last
+            filter step's composed with the front end's increments since.
+    """
+
+    stamp: float
+    pose: np.ndarray
+    covariance: np.ndarray
+    filter_step: bool
+
+
+class Viewer(Protocol):
+    """What the mapper calls (:class:`~bsslam.viz.null_viewer.NullViewer` does nothing)."""
+
+    def update(self, estimate: PoseEstimate, scan: LaserScan, laser_offset: np.ndarray, mapper: "Mapper") -> None:
+        """After each scan; ``mapper.map`` is the current map (it changes on filter steps)."""
+
+    def finish(self, result: RunResult) -> None:
+        """Once, with the run's result (after the second pass)."""
+
+
+@dataclass(frozen=True)
+class _Replayed:
+    """One frame as the second pass needs it: a filter step (scan set) with its increment
+    (None on the first frame), or a skipped scan whose pose is the last step's composed
+    with ``delta``."""
+
+    delta: np.ndarray | None
+    covariance: np.ndarray | None
+    scan: object = None
+    laser_offset: np.ndarray | None = None
+    features: object = None      # the scan's splines from the first pass (not fitted twice)
+
+
+@dataclass(frozen=True)
+class _Record:
+    """Everything the mapper keeps of one scan. A scan is recorded in one append once it
+    is fully processed, so an interruption never leaves the per-scan arrays unequal."""
+
+    stamp: float
+    pose: np.ndarray
+    covariance: np.ndarray
+    odometry: np.ndarray
+    frontend_pose: np.ndarray | None
+    step_time_s: float
+    state_size: int
+    nis: float
+    nis_dof: int
+    counts: dict[str, int]
+    replay: _Replayed
+    scan: LaserScan
+    laser_offset: np.ndarray
+
+
+class _OdometryMotion:
+    """Raw odometry increments under the filter's motion model; every scan is a filter step."""
+
+    def __init__(self) -> None:
+        self._prev: np.ndarray | None = None
+
+    def next(self, frame: Frame):
+        """(run the filter?, increment or None, its covariance or None, counter or None)."""
+        delta = None if self._prev is None else between(self._prev, frame.odometry)
+        self._prev = np.asarray(frame.odometry, dtype=float)
+        return True, delta, None, None
+
+    def pose(self) -> np.ndarray | None:
+        return None
+
+
+class _FrontendMotion:
+    """Scan-matched increments with their covariance; the filter runs on the scans the
+    update schedule picks, the others only feed the front end."""
+
+    def __init__(self, config) -> None:
+        self.odometry = LaserOdometry(config)
+        self.schedule = UpdateSchedule(config.update_distance_m, config.update_angle_rad)
+
+    def next(self, frame: Frame):
+        matched = self.odometry.step(frame)
+        if matched.increment is None:  # the first frame
+            return True, None, None, None
+        key = "frontend_fallbacks" if matched.fallback else "frontend_matched"
+        if not self.schedule.add(matched.increment, matched.covariance):
+            return False, None, None, key
+        delta, cov = self.schedule.take()
+        return True, delta, cov, key
+
+    def since_update(self):
+        """The increment (3,) and covariance (3, 3) compounded since the last filter step."""
+        return self.schedule.increment.copy(), self.schedule.covariance.copy()
+
+    def pose(self) -> np.ndarray:
+        """The front end's own pose (3,) after the last frame."""
+        return self.odometry.pose.copy()
+
+
+_blas = None
+
+
+def _one_blas_thread():
+    """A context in which BLAS runs on one thread. The per-scan matrices are small
+    (hundreds of rows): BLAS threads only add overhead, under load they make a 170×170
+    Cholesky 100× slower, and the thread count must not change the numbers between two
+    runs of the same data."""
+    global _blas
+    if _blas is None:   # scanning the loaded libraries takes ~10 ms: once per process
+        _blas = ThreadpoolController()
+    return _blas.limit(limits=1, user_api="blas")
+
+
+class Mapper:
+    """BS-SLAM as ``bsslam run`` does it, fed one scan at a time.
+
+    >>> mapper = Mapper(SLAMConfig())
+    >>> for scan, odometry_pose in my_sensor():                     # doctest: +SKIP
+    ...     estimate = mapper.add(scan, odometry_pose, scan.stamp)   # .pose (3,), .covariance (3, 3)
+    >>> result = mapper.finish()       # the second pass; result.trajectory, result.map  # doctest: +SKIP
+
+    Args:
+        config: the configuration (front end, update schedule, filter, second pass).
+        initial_pose: (3,) the map-frame pose of the first scan (x m, y m, φ rad); by
+            default the first scan's odometry pose, so map and odometry frames coincide.
+        viewer: called after every scan and at the end (e.g.
+            :class:`bsslam.viz.rerun_viewer.RerunViewer`); a no-op by default.
+        slam: an existing filter to continue instead of a new one (its state is not reset;
+            ``initial_pose`` is then ignored).
+    """
+
+    def __init__(self, config: SLAMConfig | None = None, initial_pose=None, viewer: Viewer | None = None,
+                 *, slam: SplineSLAM | None = None) -> None:
+        self.config = config or SLAMConfig()
+        self.viewer = viewer if viewer is not None else NullViewer()
+        self._initial_pose = None if initial_pose is None else _pose(initial_pose, "initial_pose")
+        self._slam = slam
+        self._motion = _FrontendMotion(self.config.frontend) if self.config.frontend.enabled else _OdometryMotion()
+        self._records: list[_Record] = []
+        self._first: tuple[np.ndarray, np.ndarray] | None = None   # the first pose and covariance
+        self._odometry: np.ndarray | None = None    # the last odometry pose
+
+    # -- views --------------------------------------------------------------------------
+    @property
+    def slam(self) -> SplineSLAM | None:
+        """The online filter (None before the first scan)."""
+        return self._slam
+
+    @property
+    def map(self) -> list[MapSpline]:
+        """The current map splines with their covariance blocks."""
+        return self._slam.map if self._slam is not None else []
+
+    @property
+    def scans(self) -> int:
+        """The number of scans added."""
+        return len(self._records)
+
+    # -- the run ------------------------------------------------------------------------
+    def add(self, scan: LaserScan, odometry=None, stamp: float | None = None, laser_offset=None, *,
+            odometry_increment=None) -> PoseEstimate:
+        """Process one scan; returns the robot's pose and covariance at it.
+
+        Args:
+            scan: the laser scan, bearings in the laser frame.
+            odometry: (3,) the robot's odometry *pose* (x m, y m, φ rad) at the scan, in the
+                odometry's own frame (only increments between scans are used).
+            stamp: the scan's time (s); ``scan.stamp`` by default.
+            laser_offset: (3,) the laser's pose in the robot frame; zeros by default.
+            odometry_increment: instead of ``odometry``: (3,) the robot-frame motion
+                (Δx m, Δy m, Δφ rad) since the previous scan. The increments are chained
+                into odometry poses starting at ``initial_pose`` (the origin by default);
+                on the first scan pass None (or zeros). The pipeline takes the increment
+                between consecutive poses again, equal to the given one up to rounding.
+        """
+        odometry = self._odometry_pose(odometry, odometry_increment)
+        stamp = float(scan.stamp if stamp is None else stamp)
+        offset = np.zeros(3) if laser_offset is None else _pose(laser_offset, "laser_offset")
+        frame = Frame(stamp, odometry, scan, offset)
+        with _one_blas_thread():
+            record = self._step(frame)
+        self._records.append(record)      # the scan is recorded whole, or not at all
+        self._odometry = odometry
+        estimate = PoseEstimate(record.stamp, record.pose, record.covariance, record.replay.scan is not None)
+        self.viewer.update(estimate, scan, offset, self)
+        return estimate
+
+    def _odometry_pose(self, odometry, increment) -> np.ndarray:
+        if odometry is not None and increment is not None:
+            raise InputError("Mapper.add: give the odometry pose or odometry_increment, not both")
+        if odometry is not None:
+            return _pose(odometry, "odometry")
+        if increment is None and self._odometry is not None:
+            raise InputError("Mapper.add: give the odometry pose or odometry_increment (None only on the first scan)")
+        start = self._odometry if self._odometry is not None else (
+            self._initial_pose if self._initial_pose is not None else np.zeros(3))
+        return start if increment is None else compose(start, _pose(increment, "odometry_increment"))
+
+    def _step(self, frame: Frame) -> _Record:
+        """The front end, the update schedule and (on the scans it picks) the filter."""
+        if self._slam is None:
+            start = frame.odometry if self._initial_pose is None else self._initial_pose
+            self._slam = SplineSLAM(self.config, initial_pose=start)
+        slam = self._slam
+        if self._first is None:
+            self._first = slam.pose, slam.pose_covariance
+        t0 = time.perf_counter()
+        run_filter, delta, delta_cov, counter = self._motion.next(frame)
+        if run_filter:
+            report = slam.step(delta, frame.scan, frame.laser_offset, odometry_covariance=delta_cov)
+            pose, cov = slam.pose, slam.pose_covariance
+            replay = _Replayed(delta, delta_cov, frame.scan, frame.laser_offset, report.features)
+        else:
+            report = None
+            pose, cov = self._motion.schedule.pose_between_updates(slam.pose, slam.pose_covariance)
+            replay = _Replayed(*self._motion.since_update())
+        step_time = time.perf_counter() - t0
+        counts = {} if counter is None else {counter: 1}
+        if report is not None:
+            _add_report(counts, report)
+        return _Record(frame.stamp, pose, cov, frame.odometry, self._motion.pose(), step_time, slam.state_size,
+                       report.nis if report else 0.0, report.nis_dof if report else 0, counts, replay,
+                       frame.scan, frame.laser_offset)
+
+    def finish(self, *, name: str = "mapper", ground_truth: Trajectory | None = None,
+               skipped: SkipCounter | None = None, point_stride: int = 4, progress: Progress = _no_progress,
+               interrupted: bool = False) -> RunResult:
+        """The run so far as a :class:`RunResult`, after the second pass when
+        ``config.relocalize`` is on. Call it once, at the end.
+
+        Args:
+            name, ground_truth, skipped: the data source's, copied into the result.
+            point_stride: keep every k-th valid beam of every scan for ``RunResult.points``
+                (0: none).
+            progress: progress of the second pass (done, total scans).
+            interrupted: the run was cut short: skip the second pass and mark the result.
+                A KeyboardInterrupt during the second pass does the same.
+        """
+        records = self._records
+        n = len(records)
+        stamps = np.array([r.stamp for r in records])
+        estimate = Trajectory(stamps, np.array([r.pose for r in records]).reshape(n, 3),
+                              np.array([r.covariance for r in records]).reshape(n, 3, 3))
+        odometry = Trajectory(stamps, np.array([r.odometry for r in records]).reshape(n, 3))
+        frontend = None
+        if isinstance(self._motion, _FrontendMotion):
+            frontend = Trajectory(stamps, np.array([r.frontend_pose for r in records]).reshape(n, 3)) if n else None
+        totals: dict[str, int] = {}
+        for r in records:
+            for key, count in r.counts.items():
+                totals[key] = totals.get(key, 0) + count
+        final_map = self.map
+        relocalized, relocalize_time, points = None, 0.0, None
+        if self.config.relocalize and n and not interrupted:
+            t0 = time.perf_counter()
+            try:
+                with _one_blas_thread():
+                    relocalized, points = relocalize(final_map, [r.replay for r in records], stamps, self.config,
+                                                     *self._first, point_stride, progress)
+                relocalize_time = time.perf_counter() - t0
+            except KeyboardInterrupt:
+                interrupted = True
+        if points is None:   # no second pass: the scans at the online poses
+            points = [_scan_points(r.scan, r.pose, r.laser_offset, point_stride) for r in records] if point_stride else []
+        step_times = np.array([r.step_time_s for r in records])
+        result = RunResult(
+            name=name, estimate=estimate, relocalized=relocalized, odometry=odometry, frontend=frontend,
+            ground_truth=ground_truth, map=final_map,
+            wall_time_s=float(np.sum(step_times)) + relocalize_time, relocalize_time_s=relocalize_time,
+            step_times_s=step_times, state_sizes=np.array([r.state_size for r in records], dtype=int),
+            totals=totals, nis=np.array([r.nis for r in records]),
+            nis_dof=np.array([r.nis_dof for r in records], dtype=int),
+            points=np.vstack(points) if points else np.empty((0, 2)),
+            skipped=skipped if skipped is not None else SkipCounter(),
+            scans=[(r.scan, r.laser_offset) for r in records], interrupted=interrupted,
+        )
+        self.viewer.finish(result)
+        return result
+
+
+def relocalize(splines: list[MapSpline], replay: list[_Replayed], stamps: np.ndarray, config: SLAMConfig,
+               initial_pose: np.ndarray, initial_covariance: np.ndarray, point_stride: int = 0,
+               progress: Progress = _no_progress) -> tuple[Trajectory, list[np.ndarray]]:
+    """The second pass: every recorded frame localised in the fixed map ``splines``.
+
+    Filter steps rerun with the first pass's increments (the front end is not run again);
+    scans between them take the last step's pose composed with the increments since.
+    Returns the trajectory (covariances relative to the map) and, with ``point_stride``,
+    the filter steps' scan points at the new poses.
+    """
+    slam = SplineSLAM.in_fixed_map(splines, config, initial_pose, initial_covariance)
+    poses, covs, points = [], [], []
+    for i, frame in enumerate(replay):
+        if frame.scan is not None:
+            slam.step(frame.delta, frame.scan, frame.laser_offset, odometry_covariance=frame.covariance,
+                      features=frame.features)
+            pose, cov = slam.pose, slam.pose_covariance
+            if point_stride:
+                points.append(_scan_points(frame.scan, pose, frame.laser_offset, point_stride))
+        else:
+            pose, cov = compose_with_covariance(slam.pose, slam.pose_covariance, frame.delta, frame.covariance)
+        poses.append(pose)
+        covs.append(cov)
+        progress(i + 1, len(replay))
+    n = len(poses)
+    return Trajectory(stamps, np.array(poses).reshape(n, 3), np.array(covs).reshape(n, 3, 3)), points
+
+
+def _pose(value, name: str) -> np.ndarray:
+    """(3,) finite floats, or an InputError naming ``name``."""
+    try:
+        pose = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be 3 finite numbers (x, y, φ), got {value!r}") from None
+    if pose.shape != (3,) or not np.all(np.isfinite(pose)):
+        raise InputError(f"{name} must be 3 finite numbers (x, y, φ), got {value!r}")
+    return pose
+
+
+def _scan_points(scan: LaserScan, pose: np.ndarray, laser_offset: np.ndarray, stride: int) -> np.ndarray:
+    """(k, 2) world points (m) of every ``stride``-th valid beam of ``scan`` taken at the
+    robot ``pose`` (3,) with the laser at ``laser_offset`` (3,) in the robot frame."""
+    ok = np.isfinite(scan.ranges) & (scan.ranges < scan.max_range) & (scan.ranges > 0)
+    sel = np.flatnonzero(ok)[::stride]
+    laser = compose(pose, laser_offset)
+    bearing = laser[2] + scan.angles[sel]
+    return laser[:2] + scan.ranges[sel, None] * np.column_stack([np.cos(bearing), np.sin(bearing)])
+
+
+def _add_report(totals: dict[str, int], report) -> None:
+    """Add one step report's counters to ``totals``."""
+    totals["filter_steps"] = totals.get("filter_steps", 0) + 1
+    for key in ("observed_splines", "matched_splines", "new_splines", "extended_splines",
+                "pruned_splines", "beams_used"):
+        totals[key] = totals.get(key, 0) + int(getattr(report, key))
+    for reason, count in report.beams_dropped.items():
+        totals[f"beams_dropped_{reason}"] = totals.get(f"beams_dropped_{reason}", 0) + count
+    for reason, count in report.scan_counts.items():
+        totals[f"scan_{reason}"] = totals.get(f"scan_{reason}", 0) + int(count)
