@@ -33,6 +33,7 @@ from bsslam.frontend import LaserOdometry, UpdateSchedule
 from bsslam.scan import LaserScan
 from bsslam.se2 import between, compose, compose_with_covariance
 from bsslam.slam import MapSpline, SplineSLAM
+from bsslam.spline import BSplineCurve
 from bsslam.trajectory import Trajectory
 from bsslam.viz.null_viewer import NullViewer
 
@@ -125,8 +126,9 @@ class PoseEstimate:
 class Viewer(Protocol):
     """What the mapper calls (:class:`~bsslam.viz.null_viewer.NullViewer` does nothing)."""
 
-    def update(self, estimate: PoseEstimate, scan: LaserScan, laser_offset: np.ndarray, mapper: "Mapper") -> None:
-        """After each scan; ``mapper.map`` is the current map (it changes on filter steps)."""
+    def update(self, estimate: PoseEstimate, points: np.ndarray, mapper: "Mapper") -> None:
+        """After each scan, with its valid beams' world points (k, 2) at ``estimate.pose``;
+        ``mapper.curves`` is the current map (it changes on filter steps)."""
 
     def finish(self, result: RunResult) -> None:
         """Once, with the run's result (after the second pass)."""
@@ -259,8 +261,20 @@ class Mapper:
 
     @property
     def map(self) -> list[MapSpline]:
-        """The current map splines with their covariance blocks."""
+        """The current map splines with their covariance blocks. Reading it folds the
+        filter's pending covariance update, which changes the last bits of the later
+        scans' numbers; :attr:`curves` does not."""
         return self._slam.map if self._slam is not None else []
+
+    @property
+    def curves(self) -> list[BSplineCurve]:
+        """The current map splines' curves (world frame, m), without covariances; reading
+        them leaves the filter untouched."""
+        if self._slam is None:
+            return []
+        # SplineSLAM.map would fold the covariance (see map): the curves need the mean only.
+        x = self._slam.state.x
+        return [feature.curve(x) for feature in self._slam.features.values()]
 
     @property
     def scans(self) -> int:
@@ -293,7 +307,7 @@ class Mapper:
         self._records.append(record)      # the scan is recorded whole, or not at all
         self._odometry = odometry
         estimate = PoseEstimate(record.stamp, record.pose, record.covariance, record.replay.scan is not None)
-        self.viewer.update(estimate, scan, offset, self)
+        self.viewer.update(estimate, _scan_points(scan, record.pose, offset, 1), self)
         return estimate
 
     def _odometry_pose(self, odometry, increment) -> np.ndarray:

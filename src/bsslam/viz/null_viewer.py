@@ -7,7 +7,7 @@ from __future__ import annotations
 class NullViewer:
     """A viewer that shows nothing; see :class:`bsslam.mapper.Viewer` for the calls."""
 
-    def update(self, estimate, scan, laser_offset, mapper) -> None:
+    def update(self, estimate, points, mapper) -> None:
         return None
 
     def finish(self, result) -> None:

@@ -1,0 +1,253 @@
+"""bsslam.Mapper: fed scan by scan it is ``bsslam run``, bit for bit; it ends early on
+KeyboardInterrupt with consistent results; it calls its viewer once per scan."""
+
+import dataclasses
+import io
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+from typer.testing import CliRunner
+
+from bsslam import Mapper, PoseEstimate
+from bsslam.cli import app
+from bsslam.config import SLAMConfig
+from bsslam.errors import InputError
+from bsslam.io import open_dataset
+from bsslam.io.trajectory_file import write_tum
+from bsslam.pipeline import run_dataset
+from bsslam.se2 import between
+from bsslam.sim import SimConfig, get_world, simulate
+
+
+@pytest.fixture(scope="module")
+def data():
+    return simulate(get_world("mixed"), SimConfig(), seed=5, steps=40)
+
+
+@pytest.fixture(scope="module")
+def config():
+    """The defaults of ``bsslam run``, with filter steps often enough for a short run."""
+    base = SLAMConfig()
+    return base.replace(frontend=dataclasses.replace(base.frontend, update_distance_m=0.5))
+
+
+def by_hand(frames, config, **finish):
+    mapper = Mapper(config)
+    estimates = [mapper.add(f.scan, f.odometry, f.stamp, f.laser_offset) for f in frames]
+    return estimates, mapper.finish(**finish)
+
+
+def assert_same_run(a, b):
+    """Every array of two results equal, bit for bit."""
+    for name in ("estimate", "relocalized", "odometry", "frontend"):
+        ta, tb = getattr(a, name), getattr(b, name)
+        assert (ta is None) == (tb is None), name
+        if ta is not None:
+            np.testing.assert_array_equal(ta.stamps, tb.stamps)
+            np.testing.assert_array_equal(ta.poses, tb.poses)
+            if ta.covariances is not None or tb.covariances is not None:
+                np.testing.assert_array_equal(ta.covariances, tb.covariances)
+    for name in ("state_sizes", "nis", "nis_dof", "points"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    assert a.totals == b.totals
+    assert len(a.map) == len(b.map)
+    for ma, mb in zip(a.map, b.map):
+        np.testing.assert_array_equal(ma.curve.control_points, mb.curve.control_points)
+        np.testing.assert_array_equal(ma.covariance, mb.covariance)
+
+
+def test_mapper_fed_by_hand_is_run_dataset_bit_for_bit(data, config):
+    estimates, result = by_hand(data, config, name=data.name, ground_truth=data.ground_truth)
+    reference = run_dataset(data, config)
+    assert_same_run(result, reference)
+    assert result.relocalized is not None and not result.interrupted
+    assert 3 < result.totals["filter_steps"] < len(data)       # the schedule skipped scans
+    # add() returned the online estimate of each scan as it went
+    np.testing.assert_array_equal([e.pose for e in estimates], result.estimate.poses)
+    np.testing.assert_array_equal([e.covariance for e in estimates], result.estimate.covariances)
+    assert sum(e.filter_step for e in estimates) == result.totals["filter_steps"]
+    # one (scan, laser offset) per frame, aligned with the trajectory
+    assert len(result.scans) == len(result.trajectory) == len(data)
+    for (scan, offset), frame in zip(result.scans, data):
+        assert scan.stamp == frame.scan.stamp and np.array_equal(scan.ranges, frame.scan.ranges)
+        assert np.array_equal(offset, frame.laser_offset)
+
+
+def _num(values):
+    return " ".join(repr(float(v)) for v in values)
+
+
+@pytest.fixture(scope="module")
+def carmen_log(data, tmp_path_factory):
+    """A CARMEN log written from the simulated frames (the reader gives them CARMEN's
+    180° geometry; what matters is that the CLI and the Mapper read the same file)."""
+    lines = []
+    for f in data:
+        ranges = np.where(np.isfinite(f.scan.ranges) & (f.scan.ranges < f.scan.max_range), f.scan.ranges, 81.83)
+        pose = _num(f.odometry)
+        lines.append(f"FLASER {ranges.size} {_num(ranges)} {pose} {pose} {f.stamp!r} sim {f.stamp!r}")
+    path = tmp_path_factory.mktemp("log") / "tiny.clf"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def tum_text(trajectory):
+    out = io.StringIO()
+    write_tum(out, trajectory)
+    return out.getvalue()
+
+
+def test_mapper_is_bsslam_run_on_a_carmen_log(carmen_log, config, tmp_path):
+    config_file = tmp_path / "config.yaml"
+    config_file.write_text("frontend: {update_distance_m: 0.5}\n")
+    cli = CliRunner().invoke(app, ["run", str(carmen_log), "--config", str(config_file), "--out", str(tmp_path / "run")])
+    assert cli.exit_code == 0, cli.output
+    run = (tmp_path / "run" / "latest").resolve()
+
+    frames = list(open_dataset(carmen_log))
+    assert len(frames) == 40
+    _, result = by_hand(frames, config)
+    assert_same_run(result, run_dataset(open_dataset(carmen_log), config))
+    # the files the CLI wrote hold the same numbers (repr round-trips every double)
+    assert (run / "trajectory.tum").read_text() == tum_text(result.relocalized)
+    assert (run / "trajectory_online.tum").read_text() == tum_text(result.estimate)
+
+
+def test_odometry_increments_chain_into_the_same_run(data):
+    """Without the front end every increment goes to the filter as given; fed as
+    increments the odometry poses are chained again, equal up to rounding."""
+    config = SLAMConfig().replace(frontend=dataclasses.replace(SLAMConfig().frontend, enabled=False),
+                                  relocalize=False)
+    frames = list(data)[:15]
+    _, as_poses = by_hand(frames, config)
+    mapper = Mapper(config, initial_pose=frames[0].odometry)
+    prev = None
+    for f in frames:
+        increment = None if prev is None else between(prev, f.odometry)
+        mapper.add(f.scan, stamp=f.stamp, laser_offset=f.laser_offset, odometry_increment=increment)
+        prev = f.odometry
+    as_increments = mapper.finish()
+    np.testing.assert_allclose(as_increments.odometry.poses, as_poses.odometry.poses, atol=1e-12)
+    np.testing.assert_allclose(as_increments.estimate.poses, as_poses.estimate.poses, atol=1e-9)
+    assert as_increments.totals["filter_steps"] == 15
+
+
+def test_add_names_bad_odometry(data):
+    frame = next(iter(data))
+    mapper = Mapper(SLAMConfig())
+    with pytest.raises(InputError, match="not both"):
+        mapper.add(frame.scan, frame.odometry, odometry_increment=np.zeros(3))
+    with pytest.raises(InputError, match="odometry must be 3 finite numbers"):
+        mapper.add(frame.scan, [0.0, np.nan, 0.0])
+    with pytest.raises(InputError, match="odometry_increment must be 3 finite numbers"):
+        mapper.add(frame.scan, odometry_increment=[1.0, 2.0])
+    estimate = mapper.add(frame.scan, frame.odometry)
+    assert isinstance(estimate, PoseEstimate) and estimate.stamp == frame.scan.stamp and estimate.filter_step
+    with pytest.raises(InputError, match="None only on the first scan"):
+        mapper.add(frame.scan)
+    assert mapper.scans == 1
+
+
+def test_initial_pose_sets_the_map_frame(data, config):
+    frames = list(data)[:12]
+    _, default = by_hand(frames, config)
+    mapper = Mapper(config, initial_pose=frames[0].odometry)
+    for f in frames:
+        mapper.add(f.scan, f.odometry, f.stamp, f.laser_offset)
+    assert_same_run(mapper.finish(), default)
+    shift = np.array([5.0, -2.0, 0.0])     # a shifted map frame: the same run, shifted
+    start = frames[0].odometry + shift
+    mapper = Mapper(config, initial_pose=start)
+    for f in frames:
+        mapper.add(f.scan, f.odometry, f.stamp, f.laser_offset)
+    shifted = mapper.finish()
+    np.testing.assert_allclose(shifted.estimate.poses - shift, default.estimate.poses,
+                               atol=1e-9)
+    np.testing.assert_array_equal(shifted.odometry.poses, default.odometry.poses)
+
+
+class Interrupted:
+    """A dataset whose iterator raises KeyboardInterrupt (Ctrl-C) after ``k`` frames."""
+
+    def __init__(self, data, k):
+        self.data, self.k = data, k
+        self.name, self.ground_truth, self.skipped = data.name, data.ground_truth, data.skipped
+
+    def __iter__(self):
+        for i, frame in enumerate(self.data):
+            if i == self.k:
+                raise KeyboardInterrupt
+            yield frame
+
+
+@pytest.fixture(scope="module")
+def full_run(data, config):
+    return run_dataset(data, config)
+
+
+def test_an_interrupted_run_returns_the_frames_so_far(data, config, full_run):
+    result = run_dataset(Interrupted(data, 25), config)
+    assert result.interrupted and result.relocalized is None and result.trajectory is result.estimate
+    assert result.steps == 25 and len(result.scans) == 25
+    for name in ("odometry", "frontend"):
+        assert len(getattr(result, name)) == 25
+    for name in ("state_sizes", "nis", "nis_dof", "step_times_s"):
+        assert getattr(result, name).shape == (25,)
+    # the online filter is causal: its first 25 poses are those of the whole run
+    np.testing.assert_array_equal(result.estimate.poses, full_run.estimate.poses[:25])
+    np.testing.assert_array_equal(result.estimate.covariances, full_run.estimate.covariances[:25])
+    assert result.totals["filter_steps"] < full_run.totals["filter_steps"]
+    assert result.totals["frontend_matched"] + result.totals.get("frontend_fallbacks", 0) == 24
+    assert len(result.map) > 0 and len(result.points) > 0       # points at the online poses
+    assert result.relocalize_time_s == 0.0
+
+
+def test_an_interrupt_from_the_progress_callback_keeps_the_frame_it_followed(data, config, full_run):
+    def progress(done, total):
+        if done == 7:
+            raise KeyboardInterrupt
+
+    result = run_dataset(data, config, progress=progress)
+    assert result.interrupted and result.steps == 7
+    np.testing.assert_array_equal(result.estimate.poses, full_run.estimate.poses[:7])
+
+
+def test_an_interrupt_in_the_second_pass_skips_it(data, config, full_run):
+    def progress(done, total):
+        if done == 10:
+            raise KeyboardInterrupt
+
+    result = run_dataset(data, config, relocalize_progress=progress)
+    assert result.interrupted and result.relocalized is None
+    np.testing.assert_array_equal(result.estimate.poses, full_run.estimate.poses)
+    assert result.steps == len(data) and result.relocalize_time_s == 0.0
+
+
+class RecordingViewer:
+    def __init__(self):
+        self.updates, self.results, self.map_sizes = [], [], []
+
+    def update(self, estimate, points, mapper):
+        self.updates.append((estimate, points))
+        self.map_sizes.append(len(mapper.curves))
+
+    def finish(self, result):
+        self.results.append(result)
+
+
+def test_the_viewer_sees_every_scan_and_the_result(data, config, full_run):
+    viewer = RecordingViewer()
+    result = run_dataset(data, config, viewer=viewer)
+    assert len(viewer.updates) == len(data) and viewer.results == [result]
+    assert [e.stamp for e, _ in viewer.updates] == [f.stamp for f in data]
+    # each scan's valid beams, in the world at its pose: on the true walls within a few cm
+    for (estimate, points), frame in zip(viewer.updates, data):
+        valid = np.isfinite(frame.scan.ranges) & (frame.scan.ranges < frame.scan.max_range)
+        assert points.shape == (valid.sum(), 2)
+    walls = cKDTree(np.vstack(data.world.polylines(0.01)))
+    distance, _ = walls.query(viewer.updates[-1][1])
+    assert np.median(distance) < 0.02 and distance.max() < 0.1
+    np.testing.assert_array_equal([e.pose for e, _ in viewer.updates], result.estimate.poses)
+    assert viewer.map_sizes[-1] == len(result.map) > 0
+    assert_same_run(result, full_run)        # watching changes nothing
