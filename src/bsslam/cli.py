@@ -110,6 +110,9 @@ def simulate(
     out: Path = typer.Option(Path("results/simulate"), help=OUT_HELP),
     config_file: Optional[Path] = typer.Option(None, "--config", help="YAML configuration of the filter."),
     list_worlds: bool = typer.Option(False, "--list", help="List the built-in worlds and exit."),
+    viewer: Optional[str] = typer.Option(None, metavar="spawn|save",
+                                         help="Show the run in rerun: spawn (live, in the viewer app) or save "
+                                              "(viewer.rrd in the results folder); pip install 'bsslam\\[viewer]'."),
 ) -> None:
     """One SLAM run in a simulated world with exact ground truth."""
     from bsslam.experiments.consistency import simulation_config
@@ -117,6 +120,7 @@ def simulate(
     from bsslam.outputs import write_outputs
     from bsslam.pipeline import run_dataset
     from bsslam.sim import WORLDS, SimConfig, get_world, simulate as simulate_world
+    from bsslam.viz.rerun_viewer import open_viewer
 
     if list_worlds:
         for name, w in WORLDS.items():
@@ -128,7 +132,8 @@ def simulate(
         data = simulate_world(get_world(world), sim, seed=seed, steps=steps)
         run_dir = make_run_dir(out)
         with progress_bar(f"SLAM in {world}", len(data.ground_truth), "scans") as update:
-            result = run_dataset(data, config, progress=update, total=len(data.ground_truth))
+            result = run_dataset(data, config, progress=update, total=len(data.ground_truth),
+                                 viewer=open_viewer(viewer, run_dir) if viewer else None)
         summary = write_outputs(result, run_dir, config, walls=data.world.polylines(0.02),
                                 exact_reference=True, title=f"BS-SLAM in the simulated world '{world}' (seed {seed})")
     except BsslamError as exc:
@@ -149,6 +154,9 @@ def run(
     reference: Optional[Path] = typer.Option(None, help="Reference trajectory (TUM or 't x y θ') for ATE."),
     scan_topic: Optional[str] = typer.Option(None, help="ROS: LaserScan topic (default: auto)."),
     odom_topic: Optional[str] = typer.Option(None, help="ROS: Odometry topic (default: auto, else /tf)."),
+    viewer: Optional[str] = typer.Option(None, metavar="spawn|save",
+                                         help="Show the run in rerun: spawn (live, in the viewer app) or save "
+                                              "(viewer.rrd in the results folder); pip install 'bsslam\\[viewer]'."),
 ) -> None:
     """Run BS-SLAM on a laser log and write trajectory, map, grid and pictures."""
     from bsslam.io import open_dataset
@@ -156,6 +164,7 @@ def run(
     from bsslam.io.trajectory_file import read_trajectory
     from bsslam.outputs import write_outputs
     from bsslam.pipeline import run_dataset
+    from bsslam.viz.rerun_viewer import open_viewer
 
     try:
         config = _load_config(config_file)
@@ -166,7 +175,8 @@ def run(
         run_dir = make_run_dir(out)
         with progress_bar(f"{log.name}", steps, "scans") as update:
             result = run_dataset(data, config, steps=steps, progress=update, total=steps,
-                                 relocalize_progress=next_phase(update, f"{log.name}: relocalising"))
+                                 relocalize_progress=next_phase(update, f"{log.name}: relocalising"),
+                                 viewer=open_viewer(viewer, run_dir) if viewer else None)
         summary = write_outputs(result, run_dir, config, reference=ref, title=f"BS-SLAM: {log.name}")
     except BsslamError as exc:
         fail(exc)
