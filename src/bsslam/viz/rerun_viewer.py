@@ -87,14 +87,17 @@ class RerunViewer:
         block: scans per trajectory block.
         spline_step_m: sampling step of the map splines (m).
         nsigma: size of the position ellipses.
+        eye_height_m: height of the view's eye above the first pose (m).
     """
 
-    def __init__(self, recording, *, block: int = 100, spline_step_m: float = 0.05, nsigma: float = 2.0) -> None:
+    def __init__(self, recording, *, block: int = 100, spline_step_m: float = 0.05, nsigma: float = 2.0,
+                 eye_height_m: float = 40.0) -> None:
         self.rr = _rerun()
         self.recording = recording
         self.block = int(block)
         self.spline_step_m = float(spline_step_m)
         self.nsigma = float(nsigma)
+        self.eye_height_m = float(eye_height_m)
         self._scans = 0
         self._t0: float | None = None
         self._trail: list[np.ndarray] = []        # the current block's positions (with the last of the previous)
@@ -116,6 +119,16 @@ class RerunViewer:
         recording.spawn()
         return cls(recording, **options)
 
+    def _blueprint(self, first_pose: np.ndarray):
+        """One 3D view of ``world`` seen from straight above the first pose (y up on the
+        screen, as on a map), the time panel on the scan index, following the newest data."""
+        rrb = self.rr.blueprint
+        x, y = float(first_pose[0]), float(first_pose[1])
+        eye = rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, position=(x, y, self.eye_height_m),
+                                look_target=(x, y, 0.0), eye_up=(0.0, 1.0, 0.0))
+        return rrb.Blueprint(rrb.Spatial3DView(origin="/world", name="map", eye_controls=eye, line_grid=False),
+                             rrb.TimePanel(timeline="scan", play_state="following"), collapse_panels=False)
+
     def _log(self, path: str, archetype) -> None:
         self.recording.log(path, archetype)
 
@@ -126,6 +139,7 @@ class RerunViewer:
         if self._t0 is None:
             self._t0 = estimate.stamp
             self.recording.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+            self.recording.send_blueprint(self._blueprint(estimate.pose))
         self.recording.set_time("scan", sequence=self._scans)
         self.recording.set_time("time", duration=float(estimate.stamp - self._t0))
         pose, cov = np.asarray(estimate.pose, dtype=float), np.asarray(estimate.covariance, dtype=float)
