@@ -58,6 +58,7 @@ class RunResult:
         nis: (N,) NIS of each step's update and (N,) its degrees of freedom.
         points: (k, 2) world scan points at the final poses (subsampled) for pictures.
         skipped: the reader's skipped-input counter.
+        scans: one (LaserScan, laser_offset (3,)) per frame, aligned with ``trajectory``.
     """
 
     name: str
@@ -75,6 +76,7 @@ class RunResult:
     nis_dof: np.ndarray
     points: np.ndarray
     skipped: SkipCounter = field(default_factory=SkipCounter)
+    scans: list = field(default_factory=list)
 
     relocalize_time_s: float = 0.0
 
@@ -167,7 +169,7 @@ def _scan_points(frame_scan, pose, laser_offset, stride: int) -> np.ndarray:
 
 def _run(dataset, config, steps, progress, total, point_stride, slam, relocalize_progress) -> RunResult:
     stamps, poses, covs, odo, fe, step_times, sizes, nis, dof = [], [], [], [], [], [], [], [], []
-    points, replay = [], []
+    points, replay, scans = [], [], []
     totals: dict[str, int] = {}
     motion = _FrontendMotion(config.frontend) if config.frontend.enabled else _OdometryMotion()
     first_pose = None
@@ -193,6 +195,7 @@ def _run(dataset, config, steps, progress, total, point_stride, slam, relocalize
         poses.append(pose)
         covs.append(cov)
         odo.append(np.asarray(frame.odometry, dtype=float))
+        scans.append((frame.scan, np.asarray(frame.laser_offset, float)))
         if isinstance(motion, _FrontendMotion):
             fe.append(motion.odometry.pose.copy())
         sizes.append(slam.state_size)
@@ -224,7 +227,7 @@ def _run(dataset, config, steps, progress, total, point_stride, slam, relocalize
         wall_time_s=float(np.sum(step_times)) + relocalize_time, relocalize_time_s=relocalize_time,
         step_times_s=np.array(step_times), state_sizes=np.array(sizes, dtype=int), totals=totals,
         nis=np.array(nis), nis_dof=np.array(dof, dtype=int),
-        points=np.vstack(points) if points else np.empty((0, 2)), skipped=dataset.skipped,
+        points=np.vstack(points) if points else np.empty((0, 2)), skipped=dataset.skipped, scans=scans,
     )
 
 
