@@ -493,6 +493,10 @@ class GridConfig:
             free space up to this distance (m); 0 ignores such beams. Nothing reflected
             within the sensor's range, but glass and black surfaces also return nothing,
             so only the near part is trusted.
+        footprint_radius_m: cells within this distance of a robot pose are free whatever
+            the beams said: the robot stood there (m). With a forward-looking laser no later
+            scan looks back at the start, so its cell would otherwise stay unknown; 0 turns
+            this off.
         log_odds_hit: log-odds added to the cell of a return (> 0; 0.85 is p = 0.7).
         log_odds_miss: log-odds added to a cell a beam passes through (< 0; −0.4 is p = 0.4).
             A cell takes at most one update per scan, and a return wins over a pass-through
@@ -512,6 +516,7 @@ class GridConfig:
     margin_m: float = 1.0
     min_range_m: float = 0.05
     no_return_clear_m: float = 5.0
+    footprint_radius_m: float = 0.2
     log_odds_hit: float = 0.85
     log_odds_miss: float = -0.4
     log_odds_limit: float = 4.0
@@ -524,6 +529,7 @@ class GridConfig:
         _check(self.margin_m >= 0, "grid.margin_m must be ≥ 0")
         _check(self.min_range_m >= 0, "grid.min_range_m must be ≥ 0")
         _check(0 <= self.no_return_clear_m < math.inf, "grid.no_return_clear_m must be ≥ 0 and finite")
+        _check(0 <= self.footprint_radius_m < math.inf, "grid.footprint_radius_m must be ≥ 0 and finite")
         _check(self.log_odds_hit > 0, "grid.log_odds_hit must be > 0")
         _check(self.log_odds_miss < 0, "grid.log_odds_miss must be < 0")
         _check(self.log_odds_limit > 0, "grid.log_odds_limit must be > 0")
