@@ -12,7 +12,7 @@ whose vertices lie on the curve (``degree4_step_m`` apart in parameter, i.e. abo
 length, since knots are chord lengths).
 
 ``map.geojson``: a FeatureCollection with one ``LineString`` per spline, sampled densely
-(every knot included), properties ``id``, ``degree``, ``knots`` and ``control_points``.
+(every knot included; a ``MultiLineString`` for a spline that jumps at a knot), properties ``id``, ``degree``, ``knots`` and ``control_points``.
 Coordinates are metres in the map frame, not the WGS 84 longitudes and latitudes of
 RFC 7946: the foreign member ``"frame"`` says so, and GIS tools must be told to read them
 as a local projected (engineering) system.
@@ -31,6 +31,9 @@ from bsslam.io.path_or_file import PathOrFile, open_path_or_file
 from bsslam.spline import BSplineCurve
 
 _SVG_COMMAND = {1: "L", 2: "Q", 3: "C"}
+# Consecutive Bézier pieces of a continuous spline meet to rounding (~1e-13 m); farther
+# apart, the spline jumps there.
+_JOIN_TOLERANCE_M = 1e-9
 
 
 class MapFeature(Protocol):
@@ -82,13 +85,40 @@ def svg_path_data(curve: BSplineCurve, degree4_step_m: float = 0.01) -> str:
     if curve.degree in _SVG_COMMAND:
         command = _SVG_COMMAND[curve.degree]
         segments = bezier_pieces(curve)
-        parts = [f"M {_pair(segments[0, 0])}"]
-        parts += [f"{command} " + " ".join(_pair(q) for q in seg[1:]) for seg in segments]
+        parts = []
+        for s, seg in enumerate(segments):
+            # a piece starts where the last ended (up to rounding) unless a knot of
+            # multiplicity p + 1 makes the spline jump there: then the pen moves
+            if s == 0 or np.max(np.abs(seg[0] - segments[s - 1, -1])) > _JOIN_TOLERANCE_M:
+                parts.append(f"M {_pair(seg[0])}")
+            parts.append(f"{command} " + " ".join(_pair(q) for q in seg[1:]))
         return " ".join(parts)
+    return " ".join(f"M {_pair(run[0])} " + " ".join(f"L {_pair(q)}" for q in run[1:])
+                    for run in sampled_runs(curve, degree4_step_m))
+
+
+def sampled_runs(curve: BSplineCurve, step_m: float) -> list[np.ndarray]:
+    """Points on the curve about ``step_m`` apart in parameter (≈ arc length, knots being
+    chord lengths), every knot among them, as (k, 2) polylines (m): one, unless the curve
+    jumps at a knot of multiplicity p + 1, where a new one starts.
+
+    Each piece is evaluated up to its own end (its polynomial), so both sides of a jump are
+    exact.
+    """
     pieces = curve.pieces
-    counts = np.maximum(np.ceil(pieces.widths / degree4_step_m), 1).astype(np.intp)
-    points = curve.evaluate(pieces.subdivide(counts))
-    return f"M {_pair(points[0])} " + " ".join(f"L {_pair(q)}" for q in points[1:])
+    counts = np.maximum(np.ceil(pieces.widths / step_m), 1).astype(np.intp)
+    piece = np.repeat(np.arange(len(counts)), counts + 1)
+    first = np.cumsum(counts + 1) - (counts + 1)
+    fraction = (np.arange(len(piece)) - first[piece]) / counts[piece]
+    points = pieces.evaluate_local(piece, fraction * pieces.widths[piece])[0]
+    runs = np.split(points, first[1:])
+    out = [runs[0]]
+    for run in runs[1:]:
+        if np.max(np.abs(run[0] - out[-1][-1])) > _JOIN_TOLERANCE_M:
+            out.append(run)
+        else:
+            out[-1] = np.vstack([out[-1], run[1:]])
+    return out
 
 
 def write_map_svg(target: PathOrFile, splines: Iterable[MapFeature], *, degree4_step_m: float = 0.01,
@@ -125,17 +155,18 @@ def write_map_svg(target: PathOrFile, splines: Iterable[MapFeature], *, degree4_
 
 def map_geojson(splines: Iterable[MapFeature], step_m: float = 0.02) -> dict:
     """The map as a GeoJSON FeatureCollection (a dict): one LineString per spline through
-    curve points about ``step_m`` apart, every knot among them (m, map frame)."""
+    curve points about ``step_m`` apart, every knot among them (m, map frame); see
+    :func:`sampled_runs`."""
     features = []
     for f in splines:
         curve = _curve(f)
-        pieces = curve.pieces
-        counts = np.maximum(np.ceil(pieces.widths / step_m), 1).astype(np.intp)
-        points = curve.evaluate(pieces.subdivide(counts))
+        runs = sampled_runs(curve, step_m)
+        geometry = ({"type": "LineString", "coordinates": runs[0].tolist()} if len(runs) == 1 else
+                    {"type": "MultiLineString", "coordinates": [run.tolist() for run in runs]})
         features.append({
             "type": "Feature",
             "id": int(f.id),
-            "geometry": {"type": "LineString", "coordinates": points.tolist()},
+            "geometry": geometry,
             "properties": {"id": int(f.id), "degree": int(curve.degree), "knots": curve.knots.tolist(),
                            "control_points": curve.control_points.tolist()},
         })
