@@ -110,6 +110,8 @@ def simulate(
     out: Path = typer.Option(Path("results/simulate"), help=OUT_HELP),
     config_file: Optional[Path] = typer.Option(None, "--config", help="YAML configuration of the filter."),
     list_worlds: bool = typer.Option(False, "--list", help="List the built-in worlds and exit."),
+    show_control_points: bool = typer.Option(True, "--show-control-points/--hide-control-points",
+                                             help="Draw the splines' control points in map.png/map.svg."),
 ) -> None:
     """One SLAM run in a simulated world with exact ground truth."""
     from bsslam.experiments.consistency import simulation_config
@@ -130,7 +132,8 @@ def simulate(
         with progress_bar(f"SLAM in {world}", len(data.ground_truth), "scans") as update:
             result = run_dataset(data, config, progress=update, total=len(data.ground_truth))
         summary = write_outputs(result, run_dir, config, walls=data.world.polylines(0.02),
-                                exact_reference=True, title=f"BS-SLAM in the simulated world '{world}' (seed {seed})")
+                                exact_reference=True, title=f"BS-SLAM in the simulated world '{world}' (seed {seed})",
+                                show_control_points=show_control_points)
     except BsslamError as exc:
         fail(exc)
     print_summary(summary, f"bsslam simulate --world {world}")
@@ -149,6 +152,8 @@ def run(
     reference: Optional[Path] = typer.Option(None, help="Reference trajectory (TUM or 't x y θ') for ATE."),
     scan_topic: Optional[str] = typer.Option(None, help="ROS: LaserScan topic (default: auto)."),
     odom_topic: Optional[str] = typer.Option(None, help="ROS: Odometry topic (default: auto, else /tf)."),
+    show_control_points: bool = typer.Option(False, "--show-control-points",
+                                             help="Draw the splines' control points in map.png/map.svg."),
 ) -> None:
     """Run BS-SLAM on a laser log and write trajectory, map, grid and pictures."""
     from bsslam.io import open_dataset
@@ -167,7 +172,8 @@ def run(
         with progress_bar(f"{log.name}", steps, "scans") as update:
             result = run_dataset(data, config, steps=steps, progress=update, total=steps,
                                  relocalize_progress=next_phase(update, f"{log.name}: relocalising"))
-        summary = write_outputs(result, run_dir, config, reference=ref, title=f"BS-SLAM: {log.name}")
+        summary = write_outputs(result, run_dir, config, reference=ref, title=f"BS-SLAM: {log.name}",
+                                show_control_points=show_control_points)
     except BsslamError as exc:
         fail(exc)
     print_summary(summary, f"bsslam run {log}")

@@ -97,8 +97,9 @@ def write_vector_maps(run_dir: Path, splines) -> None:
 
 def write_outputs(result: RunResult, run_dir: Path, config: SLAMConfig, *, walls=None,
                   reference: Trajectory | None = None, exact_reference: bool = False,
-                  title: str = "") -> dict:
-    """Write every output file into ``run_dir`` and return the summary."""
+                  title: str = "", show_control_points: bool = False) -> dict:
+    """Write every output file into ``run_dir`` and return the summary; the pictures show
+    the splines' control points when ``show_control_points``."""
     from bsslam.viz import save_map_figure
 
     run_dir = Path(run_dir)
@@ -123,6 +124,7 @@ def write_outputs(result: RunResult, run_dir: Path, config: SLAMConfig, *, walls
         true_poses=None if ref is None else ref.poses, est_poses=result.trajectory.poses,
         est_covariances=result.trajectory.covariances, odom_poses=result.odometry.poses,
         points=result.points if len(result.points) else None, title=title or result.name,
+        control_points=show_control_points,
     )
     summary = summarize(result, reference, exact_reference)
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
