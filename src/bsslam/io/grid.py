@@ -27,6 +27,7 @@ OCCUPIED = 0
 FREE = 254
 UNKNOWN = 205
 
+
 def _polyline_segments(polylines: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """(m, 2) starts and ends of all consecutive point pairs; a single point is a
     zero-length segment so that it is still drawn."""
