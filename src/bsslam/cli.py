@@ -113,6 +113,8 @@ def simulate(
     viewer: Optional[str] = typer.Option(None, metavar="spawn|save",
                                          help="Show the run in rerun: spawn (live, in the viewer app) or save "
                                               "(viewer.rrd in the results folder); pip install 'bsslam\\[viewer]'."),
+    show_control_points: bool = typer.Option(True, "--show-control-points/--hide-control-points",
+                                             help="Draw the splines' control points in map.png/map.svg."),
 ) -> None:
     """One SLAM run in a simulated world with exact ground truth."""
     from bsslam.experiments.consistency import simulation_config
@@ -135,7 +137,8 @@ def simulate(
             result = run_dataset(data, config, progress=update, total=len(data.ground_truth),
                                  viewer=open_viewer(viewer, run_dir) if viewer else None)
         summary = write_outputs(result, run_dir, config, walls=data.world.polylines(0.02),
-                                exact_reference=True, title=f"BS-SLAM in the simulated world '{world}' (seed {seed})")
+                                exact_reference=True, title=f"BS-SLAM in the simulated world '{world}' (seed {seed})",
+                                show_control_points=show_control_points)
     except BsslamError as exc:
         fail(exc)
     print_summary(summary, f"bsslam simulate --world {world}")
@@ -157,6 +160,8 @@ def run(
     viewer: Optional[str] = typer.Option(None, metavar="spawn|save",
                                          help="Show the run in rerun: spawn (live, in the viewer app) or save "
                                               "(viewer.rrd in the results folder); pip install 'bsslam\\[viewer]'."),
+    show_control_points: bool = typer.Option(False, "--show-control-points",
+                                             help="Draw the splines' control points in map.png/map.svg."),
 ) -> None:
     """Run BS-SLAM on a laser log and write trajectory, map, grid and pictures."""
     from bsslam.io import open_dataset
@@ -177,7 +182,8 @@ def run(
             result = run_dataset(data, config, steps=steps, progress=update, total=steps,
                                  relocalize_progress=next_phase(update, f"{log.name}: relocalising"),
                                  viewer=open_viewer(viewer, run_dir) if viewer else None)
-        summary = write_outputs(result, run_dir, config, reference=ref, title=f"BS-SLAM: {log.name}")
+        summary = write_outputs(result, run_dir, config, reference=ref, title=f"BS-SLAM: {log.name}",
+                                show_control_points=show_control_points)
     except BsslamError as exc:
         fail(exc)
     print_summary(summary, f"bsslam run {log}")

@@ -420,6 +420,7 @@ class SLAMConfig:
     association: AssociationConfig = field(default_factory=AssociationConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
     frontend: FrontendConfig = field(default_factory=FrontendConfig)
+    grid: GridConfig = field(default_factory=lambda: GridConfig())   # defined at the end of this file
     mode: Mode = "slam"
     initial_pose_sigma: tuple[float, float, float] = (0.0, 0.0, 0.0)
     relocalize: bool = True
@@ -477,3 +478,65 @@ _SECTION_TYPES = {
     "mapping": MappingConfig,
     "frontend": FrontendConfig,
 }
+
+
+@dataclass(frozen=True)
+class GridConfig:
+    """The occupancy grid a run writes (``grid.pgm``/``grid.yaml``, ROS ``map_server``):
+    log-odds evidence from every scan at its final pose, the map splines drawn in as occupied.
+
+    Attributes:
+        resolution_m: cell size (m).
+        margin_m: unknown border around everything drawn (m).
+        min_range_m: beams at or below this range are invalid and ignored (m).
+        no_return_clear_m: a "no return" beam (range inf or ≥ the scan's max_range) clears
+            free space up to this distance (m); 0 ignores such beams. Nothing reflected
+            within the sensor's range, but glass and black surfaces also return nothing,
+            so only the near part is trusted.
+        footprint_radius_m: cells within this distance of a robot pose are free whatever
+            the beams said: the robot stood there (m). With a forward-looking laser no later
+            scan looks back at the start, so its cell would otherwise stay unknown; 0 turns
+            this off.
+        log_odds_hit: log-odds added to the cell of a return (> 0; 0.85 is p = 0.7).
+        log_odds_miss: log-odds added to a cell a beam passes through (< 0; −0.4 is p = 0.4).
+            A cell takes at most one update per scan, and a return wins over a pass-through
+            of the same scan (a wall cell grazed by a neighbouring beam stays a wall).
+        log_odds_limit: log-odds are clamped to ±this after every update, so a cell can
+            change its mind after a bounded number of contrary scans (> 0).
+        occupied_thresh: a cell is occupied when p > this (probability, as map_server's).
+        free_thresh: a cell is free when p < this (probability). Both go into grid.yaml;
+            the image is trinary (0 occupied, 254 free, 205 unknown), which map_server reads
+            back to the same classes only while free_thresh < 50/255 ≈ 0.19608 < occupied_thresh.
+        max_cells: the largest grid (cells) a run may allocate; a larger extent (a wild
+            range or pose) is an error naming this key, never a huge allocation. 8 bytes
+            a cell while building: the default is at most 400 MB.
+    """
+
+    resolution_m: float = 0.05
+    margin_m: float = 1.0
+    min_range_m: float = 0.05
+    no_return_clear_m: float = 5.0
+    footprint_radius_m: float = 0.2
+    log_odds_hit: float = 0.85
+    log_odds_miss: float = -0.4
+    log_odds_limit: float = 4.0
+    occupied_thresh: float = 0.65
+    free_thresh: float = 0.196
+    max_cells: int = 50_000_000
+
+    def __post_init__(self) -> None:
+        _check(self.resolution_m > 0, "grid.resolution_m must be > 0")
+        _check(self.margin_m >= 0, "grid.margin_m must be ≥ 0")
+        _check(self.min_range_m >= 0, "grid.min_range_m must be ≥ 0")
+        _check(0 <= self.no_return_clear_m < math.inf, "grid.no_return_clear_m must be ≥ 0 and finite")
+        _check(0 <= self.footprint_radius_m < math.inf, "grid.footprint_radius_m must be ≥ 0 and finite")
+        _check(self.log_odds_hit > 0, "grid.log_odds_hit must be > 0")
+        _check(self.log_odds_miss < 0, "grid.log_odds_miss must be < 0")
+        _check(self.log_odds_limit > 0, "grid.log_odds_limit must be > 0")
+        _check(1 / 255 < self.free_thresh < 50 / 255 < self.occupied_thresh < 1,
+               "grid.free_thresh and grid.occupied_thresh must satisfy 1/255 < free_thresh < 50/255 "
+               "< occupied_thresh < 1 (the trinary image's grey values must read back as written)")
+        _check(isinstance(self.max_cells, int) and self.max_cells >= 1, "grid.max_cells must be an integer ≥ 1")
+
+
+_SECTION_TYPES["grid"] = GridConfig

@@ -1,4 +1,5 @@
-"""Write a run's results folder: trajectory, covariances, map, grid, pictures, summary.
+"""Write a run's results folder: trajectory, covariances, map (JSON, metric SVG, GeoJSON),
+occupancy grid, pictures, summary.
 
 One function serves ``bsslam simulate`` and ``bsslam run``, so both produce the same files.
 """
@@ -13,10 +14,11 @@ import numpy as np
 from bsslam.config import SLAMConfig
 from bsslam.eval import ate, pose_errors
 from bsslam.io.config_file import write_config
-from bsslam.io.grid import render_grid, write_grid
+from bsslam.io.grid import build_occupancy_grid, write_grid
 from bsslam.io.map_file import write_map_json
 from bsslam.io.pose_covariance_file import write_pose_covariance_csv
 from bsslam.io.trajectory_file import write_tum
+from bsslam.io.vector_map import write_map_geojson, write_map_svg
 from bsslam.pipeline import RunResult
 from bsslam.trajectory import Trajectory
 
@@ -74,10 +76,30 @@ def summarize(result: RunResult, reference: Trajectory | None = None, exact_refe
     return summary
 
 
+def write_run_grid(result: RunResult, run_dir: Path, config: SLAMConfig) -> None:
+    """``grid.pgm`` + ``grid.yaml``: every scan at its reported pose, the splines drawn in."""
+    grid_config = config.grid
+    curves = [m.curve for m in result.map]
+    # a result without scans (built by other code) still gets the splines drawn in
+    poses = result.trajectory.poses if result.scans else np.empty((0, 3))
+    grid = build_occupancy_grid(result.scans, poses, grid_config,
+                                sample_curves(curves, grid_config.resolution_m / 4))
+    write_grid(run_dir / "grid.pgm", run_dir / "grid.yaml",
+               grid.image(grid_config.occupied_thresh, grid_config.free_thresh), grid.origin, grid.resolution_m,
+               grid_config.occupied_thresh, grid_config.free_thresh)
+
+
+def write_vector_maps(run_dir: Path, splines) -> None:
+    """``map_metric.svg`` (exact Bézier paths in metres) and ``map.geojson`` (line strings)."""
+    write_map_svg(run_dir / "map_metric.svg", splines)
+    write_map_geojson(run_dir / "map.geojson", splines)
+
+
 def write_outputs(result: RunResult, run_dir: Path, config: SLAMConfig, *, walls=None,
                   reference: Trajectory | None = None, exact_reference: bool = False,
-                  title: str = "") -> dict:
-    """Write every output file into ``run_dir`` and return the summary."""
+                  title: str = "", show_control_points: bool = False) -> dict:
+    """Write every output file into ``run_dir`` and return the summary; the pictures show
+    the splines' control points when ``show_control_points``."""
     from bsslam.viz import save_map_figure
 
     run_dir = Path(run_dir)
@@ -94,15 +116,15 @@ def write_outputs(result: RunResult, run_dir: Path, config: SLAMConfig, *, walls
     write_map_json(run_dir / "map.json", result.map)
     write_config(run_dir / "config.yaml", config)
     curves = [m.curve for m in result.map]
-    polylines = sample_curves(curves)
-    grid, origin = render_grid(polylines, resolution_m=0.05, margin_m=1.0)
-    write_grid(run_dir / "grid.pgm", run_dir / "grid.yaml", grid, origin, 0.05)
+    write_run_grid(result, run_dir, config)
+    write_vector_maps(run_dir, result.map)
     ref = reference if reference is not None else result.ground_truth
     save_map_figure(
         [run_dir / "map.png", run_dir / "map.svg"], walls=walls, curves=curves,
         true_poses=None if ref is None else ref.poses, est_poses=result.trajectory.poses,
         est_covariances=result.trajectory.covariances, odom_poses=result.odometry.poses,
         points=result.points if len(result.points) else None, title=title or result.name,
+        control_points=show_control_points,
     )
     summary = summarize(result, reference, exact_reference)
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")

@@ -1,4 +1,4 @@
-"""Round trips of the spline map JSON and the map_server occupancy grid."""
+"""Round trips of the spline map JSON (the occupancy grid: test_io_occupancy_grid.py)."""
 
 import io
 import json
@@ -6,10 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
-import yaml
 
 from bsslam.errors import InputError, SplineError
-from bsslam.io.grid import FREE, OCCUPIED, UNKNOWN, render_grid, write_grid
 from bsslam.io.map_file import read_map_json, write_map_json
 
 
@@ -99,84 +97,3 @@ def test_invalid_json_names_the_line(tmp_path):
     with pytest.raises(InputError) as info:
         read_map_json(path)
     assert info.value.line is not None
-
-
-def _read_pgm(data: bytes) -> np.ndarray:
-    magic, width, height, maxval, pixels = data.split(maxsplit=4)
-    assert magic == b"P5" and maxval == b"255"
-    return np.frombuffer(pixels, dtype=np.uint8).reshape(int(height), int(width))
-
-
-def _world_of_cell(row, col, origin, resolution, height):
-    """Centre of a cell through the map_server convention (origin = lower-left corner)."""
-    return (origin[0] + (col + 0.5) * resolution, origin[1] + (height - 1 - row + 0.5) * resolution)
-
-
-def _cell_of(x, y, origin, resolution, height):
-    return (height - 1 - int(np.floor((y - origin[1]) / resolution)),
-            int(np.floor((x - origin[0]) / resolution)))
-
-
-def test_grid_files_follow_map_server_and_cells_map_back_to_the_world(tmp_path):
-    # the corner is off the cell boundaries so the expected cell is unambiguous
-    wall = np.array([[0.0, 0.0], [4.04, 0.0], [4.04, 3.04]])
-    resolution = 0.1
-    grid, origin = render_grid([wall], resolution_m=resolution, margin_m=0.5)
-    assert origin == pytest.approx((-0.5, -0.5, 0.0))
-    write_grid(tmp_path / "map.pgm", tmp_path / "map.yaml", grid, origin, resolution)
-
-    meta = yaml.safe_load((tmp_path / "map.yaml").read_text())
-    assert meta == {"image": "map.pgm", "resolution": 0.1, "origin": list(origin), "negate": 0,
-                    "occupied_thresh": 0.65, "free_thresh": 0.196, "mode": "trinary"}
-    image = _read_pgm((tmp_path / "map.pgm").read_bytes())
-    np.testing.assert_array_equal(image, grid)
-    assert set(np.unique(image)) == {OCCUPIED, UNKNOWN}
-    height = image.shape[0]
-    assert image.shape == (41, 51)  # (3.04 + 1) / 0.1 rows, (4.04 + 1) / 0.1 columns, rounded up
-
-    # the top-right occupied cell is the corner's, and maps back to its centre
-    rows, cols = np.nonzero(image == OCCUPIED)
-    top = rows.min()
-    corner_cell = (top, cols[rows == top].max())
-    assert corner_cell == _cell_of(4.04, 3.04, origin, resolution, height)
-    assert corner_cell[0] == 41 - 1 - 35  # row 0 is the top: y = 3.04 is 35 cells above y = -0.5
-    assert _world_of_cell(*corner_cell, origin, resolution, height) == pytest.approx((4.05, 3.05))
-    # every occupied cell lies on the wall, and the wall leaves no gap along x
-    world = np.array([_world_of_cell(r, c, origin, resolution, height) for r, c in zip(rows, cols)])
-    on_bottom = np.abs(world[:, 1]) <= resolution * 0.75
-    on_right = np.abs(world[:, 0] - 4.04) <= resolution * 0.75
-    assert np.all(on_bottom | on_right)
-    bottom_cols = np.unique(cols[on_bottom])
-    assert np.array_equal(bottom_cols, np.arange(bottom_cols.min(), bottom_cols.max() + 1))
-    assert len(bottom_cols) >= 40
-
-
-def test_free_rays_clear_traversed_cells_but_not_the_hit():
-    wall = np.array([[2.04, -1.04], [2.04, 1.04]])
-    origin_xy = np.array([0.03, 0.04])
-    hits = np.array([[2.04, 0.04], [2.04, 0.64]])
-    grid, origin = render_grid([wall], resolution_m=0.1, margin_m=0.2, free_rays=[(origin_xy, hits)])
-    height = grid.shape[0]
-
-    def value(x, y):
-        return grid[_cell_of(x, y, origin, 0.1, height)]
-
-    assert value(*origin_xy) == FREE
-    assert value(1.0, 0.04) == FREE
-    assert value(*(0.5 * (origin_xy + hits[1]))) == FREE
-    assert value(*hits[0]) == OCCUPIED and value(*hits[1]) == OCCUPIED
-    assert value(1.0, -0.5) == UNKNOWN  # no ray went there
-    assert value(2.2, 0.04) == UNKNOWN  # behind the wall
-
-
-def test_empty_map_gives_an_unknown_grid_around_the_origin():
-    grid, origin = render_grid([], resolution_m=0.1, margin_m=1.0)
-    assert grid.shape == (20, 20) and np.all(grid == UNKNOWN)
-    assert origin == pytest.approx((-1.0, -1.0, 0.0))
-
-
-def test_grid_refuses_bad_arguments(tmp_path):
-    with pytest.raises(InputError, match="resolution"):
-        render_grid([np.zeros((2, 2))], resolution_m=0.0)
-    with pytest.raises(InputError, match="uint8"):
-        write_grid(tmp_path / "a.pgm", tmp_path / "a.yaml", np.zeros((2, 2)), (0, 0, 0), 0.1)

@@ -8,6 +8,7 @@ from matplotlib.collections import EllipseCollection, LineCollection
 
 from bsslam.errors import InputError
 from bsslam.viz import (
+    map_style,
     new_figure,
     plot_errors_with_bounds,
     plot_nees,
@@ -55,6 +56,58 @@ def test_splines_without_control_points_draw_only_curves():
     ax = new_figure().add_subplot()
     plot_splines(ax, [FakeCurve()], control_points=False)
     assert len(ax.collections) == 1 and not ax.lines
+
+
+def test_sizes_shrink_with_the_map_extent_to_a_floor():
+    small, building, block, campus, huge = (map_style(e) for e in (10.0, 40.0, 200.0, 1000.0, 1e6))
+    assert small == building                           # full size up to 40 m
+    assert campus.control_point_size < small.control_point_size
+    assert campus.spline_linewidth < small.spline_linewidth
+    assert block.control_point_size == pytest.approx(small.control_point_size * 40.0 / 200.0)
+    assert block.trajectory_linewidth == pytest.approx(small.trajectory_linewidth * 40.0 / 200.0)
+    assert huge == campus                              # the floor: still visible
+    assert campus.spline_linewidth == pytest.approx(0.15 * small.spline_linewidth)
+    assert map_style(0.0) == small and map_style(float("nan")) == small
+
+
+def _map_figure_axes(tmp_path, monkeypatch, extent_m, **kwargs):
+    """The axes of the figure save_map_figure writes for a straight spline ``extent_m`` wide."""
+    import matplotlib.figure
+
+    class Long(FakeCurve):
+        control_points = FakeCurve.control_points * extent_m / 2.0
+
+        def evaluate(self, t):
+            return FakeCurve.evaluate(self, t) * extent_m / 2.0
+
+    saved = []
+    original = matplotlib.figure.Figure.savefig
+
+    def keep_and_save(fig, *args, **kw):
+        saved.append(fig)
+        return original(fig, *args, **kw)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", keep_and_save)
+    save_map_figure([tmp_path / "m.png"], curves=[Long()], **kwargs)
+    (ax,) = saved[0].axes
+    return ax
+
+
+def test_map_figure_scales_sizes_and_draws_control_points_only_when_asked(tmp_path, monkeypatch):
+    ax = _map_figure_axes(tmp_path, monkeypatch, 10.0)
+    assert "control points" not in ax.get_legend_handles_labels()[1]
+    assert not [line for line in ax.lines if line.get_marker() == "o"]
+    (curves,) = [c for c in ax.collections if isinstance(c, LineCollection)]
+    assert curves.get_linewidths()[0] == pytest.approx(map_style(10.0).spline_linewidth)
+
+    small = _map_figure_axes(tmp_path, monkeypatch, 10.0, control_points=True)
+    large = _map_figure_axes(tmp_path, monkeypatch, 1000.0, control_points=True)
+    (small_dots,) = [line for line in small.lines if line.get_marker() == "o"]
+    (large_dots,) = [line for line in large.lines if line.get_marker() == "o"]
+    assert large_dots.get_markersize() < small_dots.get_markersize()
+    assert large_dots.get_markersize() == pytest.approx(map_style(1000.0).control_point_size)
+    # the extent is the map's: 2 × 1000/2 m wide
+    assert large.get_xlim()[1] - large.get_xlim()[0] > 1000.0
 
 
 def test_trajectory_line_has_the_poses():

@@ -1,6 +1,7 @@
-"""Occupancy grids in the ROS ``map_server`` format (a PGM image and a YAML description).
+"""Occupancy grids: log-odds evidence from a run's scans at their final poses, with the map
+curves drawn in, written in the ROS ``map_server`` format (a PGM image and a YAML description).
 
-The grid holds the PGM grey values directly, "trinary" mode: 0 = occupied (black),
+The image holds the PGM grey values directly, "trinary" mode: 0 = occupied (black),
 254 = free, 205 = unknown. Row 0 is the top of the image (largest y); ``origin`` is the
 world pose (x m, y m, θ rad) of the lower-left corner of the lower-left cell, as
 map_server expects, so cell (row, col) covers x ∈ [ox + col·res, ox + (col+1)·res) and
@@ -10,39 +11,21 @@ y ∈ [oy + (H−1−row)·res, oy + (H−row)·res).
 from __future__ import annotations
 
 import os
-from typing import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Iterator, Sequence
 
 import numpy as np
 import yaml
+from PIL import Image
 
+from bsslam.config import GridConfig
 from bsslam.errors import InputError
+from bsslam.io.grid_kernels import draw_segments, integrate_scans
 from bsslam.io.path_or_file import PathOrFile, describe, open_path_or_file
 
 OCCUPIED = 0
 FREE = 254
 UNKNOWN = 205
-
-# Samples per cell along lines: finer than the cell so a diagonal line leaves no gaps.
-_SAMPLES_PER_CELL = 4
-
-
-def _sample_segments(starts: np.ndarray, ends: np.ndarray, step_m: float) -> np.ndarray:
-    """Points every ≤ ``step_m`` along each segment, both ends included.
-
-    Args:
-        starts, ends: (m, 2) segment end points (m).
-    Returns:
-        (k, 2) points, all segments together (one vectorised pass, no loop per segment).
-    """
-    delta = ends - starts
-    length = np.hypot(delta[:, 0], delta[:, 1])
-    pieces = np.maximum(np.ceil(length / step_m), 1).astype(np.int64)
-    counts = pieces + 1
-    segment = np.repeat(np.arange(len(starts)), counts)
-    first = np.cumsum(counts) - counts
-    k = np.arange(counts.sum()) - np.repeat(first, counts)
-    fraction = k / np.repeat(pieces, counts)
-    return starts[segment] + fraction[:, None] * delta[segment]
 
 
 def _polyline_segments(polylines: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -63,77 +46,170 @@ def _polyline_segments(polylines: Sequence[np.ndarray]) -> tuple[np.ndarray, np.
     return np.concatenate(starts), np.concatenate(ends)
 
 
-def _ray_segments(free_rays: Iterable[tuple[np.ndarray, np.ndarray]],
-                  resolution_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Starts, shortened ends and the true end points of all rays.
+@dataclass(frozen=True, eq=False)
+class OccupancyGrid:
+    """Log-odds occupancy evidence on a regular grid.
 
-    Each ray stops half a cell short of its end point: the end is where the beam hit
-    something, so its own cell must not be cleared.
+    Attributes:
+        log_odds: (H, W) float32 log-odds of "occupied"; 0 = never observed. Row 0 is the
+            top of the image (largest y), as in the PGM.
+        origin: (x m, y m, θ = 0 rad) of the lower-left corner of the lower-left cell.
+        resolution_m: cell size (m).
     """
-    starts, ends = [], []
-    for origin, endpoints in free_rays:
-        pts = np.asarray(endpoints, dtype=float).reshape(-1, 2)
-        pts = pts[np.all(np.isfinite(pts), axis=1)]
-        starts.append(np.broadcast_to(np.asarray(origin, dtype=float).reshape(2), pts.shape))
-        ends.append(pts)
-    if not starts:
-        return np.empty((0, 2)), np.empty((0, 2)), np.empty((0, 2))
-    starts_all, ends_all = np.concatenate(starts), np.concatenate(ends)
-    delta = ends_all - starts_all
-    length = np.hypot(delta[:, 0], delta[:, 1])
-    keep = np.clip(length - 0.5 * resolution_m, 0.0, None) / np.where(length > 0, length, 1.0)
-    return starts_all, starts_all + keep[:, None] * delta, ends_all
+
+    log_odds: np.ndarray
+    origin: tuple[float, float, float]
+    resolution_m: float
+
+    def probabilities(self) -> np.ndarray:
+        """(H, W) probability of "occupied", 1 / (1 + e^(−log-odds)); 0.5 where unobserved."""
+        return 1.0 / (1.0 + np.exp(-self.log_odds.astype(float)))
+
+    def image(self, occupied_thresh: float = 0.65, free_thresh: float = 0.196) -> np.ndarray:
+        """(H, W) uint8 trinary image: OCCUPIED where p > ``occupied_thresh``, FREE where
+        p < ``free_thresh``, UNKNOWN elsewhere (map_server's own classification)."""
+        p = self.probabilities()
+        image = np.full(p.shape, UNKNOWN, dtype=np.uint8)
+        image[p < free_thresh] = FREE
+        image[p > occupied_thresh] = OCCUPIED
+        return image
 
 
-def render_grid(polylines: Sequence[np.ndarray], resolution_m: float = 0.05, margin_m: float = 1.0,
-                free_rays: Iterable[tuple[np.ndarray, np.ndarray]] | None = None
-                ) -> tuple[np.ndarray, tuple[float, float, float]]:
-    """Rasterise map curves (and optionally the free space seen by laser rays).
+def _laser_poses(poses: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """(S, 3) world poses of the lasers: each robot pose (S, 3) composed with its laser's
+    mounting offset (S, 3) in the robot frame (m, rad)."""
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    return np.column_stack([poses[:, 0] + c * offsets[:, 0] - s * offsets[:, 1],
+                            poses[:, 1] + s * offsets[:, 0] + c * offsets[:, 1],
+                            poses[:, 2] + offsets[:, 2]])
+
+
+@dataclass(frozen=True)
+class _BeamBatch:
+    """The beams of consecutive scans in world coordinates (m): ``origins`` (S, 2) of the
+    lasers, beams of scan s at ``beam_start[s] : beam_start[s+1]`` of ``ends`` (B, 2) and
+    ``hit`` (B,) (a return, else a no-return beam cleared up to its end)."""
+
+    first_scan: int
+    origins: np.ndarray
+    beam_start: np.ndarray
+    ends: np.ndarray
+    hit: np.ndarray
+
+
+def _beam_batch(first_scan: int, scans: list, poses: np.ndarray, config: GridConfig) -> _BeamBatch:
+    """One batch of scans (list of (LaserScan, laser offset (3,))) at ``poses`` (S, 3)."""
+    counts = np.array([len(scan.ranges) for scan, _ in scans], dtype=np.int64)
+    laser = _laser_poses(poses, np.array([np.asarray(offset, dtype=float).reshape(3) for _, offset in scans]))
+    ranges = np.concatenate([scan.ranges for scan, _ in scans])
+    angles = np.concatenate([scan.angles for scan, _ in scans])
+    max_range = np.repeat([float(scan.max_range) for scan, _ in scans], counts)
+    scan_of = np.repeat(np.arange(len(scans)), counts)
+    with np.errstate(invalid="ignore"):
+        valid = ranges > config.min_range_m                   # NaN (a measurement error) is not
+        hit = valid & (ranges < max_range)                    # inf and ≥ max_range: no return
+    clear = valid & ~hit & (config.no_return_clear_m > 0)
+    length = np.where(hit, ranges, np.minimum(config.no_return_clear_m, max_range))
+    bearing = laser[scan_of, 2] + angles
+    ends = laser[scan_of, :2] + length[:, None] * np.column_stack([np.cos(bearing), np.sin(bearing)])
+    origin_ok = np.all(np.isfinite(laser[:, :2]), axis=1)
+    keep = (hit | clear) & np.all(np.isfinite(ends), axis=1) & origin_ok[scan_of]
+    beam_start = np.searchsorted(scan_of[keep], np.arange(len(scans) + 1))
+    origins = np.where(origin_ok[:, None], laser[:, :2], 0.0)   # a scan without beams is never walked
+    return _BeamBatch(first_scan, origins, beam_start, ends[keep], hit[keep])
+
+
+def _beam_batches(scans: Sequence, poses: np.ndarray, config: GridConfig,
+                  batch_beams: int = 1 << 20) -> Iterator[_BeamBatch]:
+    """The scans in batches of about ``batch_beams`` beams, so memory stays bounded
+    whatever the length of the run."""
+    first, count = 0, 0
+    for k, (scan, _) in enumerate(scans):
+        count += len(scan.ranges)
+        if count >= batch_beams or k == len(scans) - 1:
+            yield _beam_batch(first, list(scans[first:k + 1]), poses[first:k + 1], config)
+            first, count = k + 1, 0
+
+
+def _clear_footprints(log_odds: np.ndarray, centres: np.ndarray, radius: float, value: float) -> None:
+    """Set every cell whose centre is within ``radius`` of a centre (k, 2) to ``value``
+    (cell units, y-up ``log_odds``); the centres' own cells always."""
+    centres = centres[np.all(np.isfinite(centres), axis=1)]
+    if not len(centres):
+        return
+    reach = int(np.ceil(radius)) + 1
+    d = np.arange(-reach, reach + 1)
+    offsets = np.stack(np.meshgrid(d, d, indexing="ij"), axis=-1).reshape(-1, 2)     # (row, col)
+    cell = np.floor(centres).astype(np.int64)                                         # (col, row)
+    rows = cell[:, 1, None] + offsets[None, :, 0]
+    cols = cell[:, 0, None] + offsets[None, :, 1]
+    inside = np.hypot(cols + 0.5 - centres[:, 0, None], rows + 0.5 - centres[:, 1, None]) <= radius
+    inside |= (offsets[:, 0] == 0) & (offsets[:, 1] == 0)
+    height, width = log_odds.shape
+    inside &= (rows >= 0) & (rows < height) & (cols >= 0) & (cols < width)
+    log_odds[rows[inside], cols[inside]] = value
+
+
+def build_occupancy_grid(scans: Sequence, poses: np.ndarray, config: GridConfig,
+                         polylines: Sequence[np.ndarray] = ()) -> OccupancyGrid:
+    """The occupancy grid of a run: every scan's beams at their poses, then the map curves.
+
+    Each beam lowers the log-odds of the cells it crosses (``log_odds_miss``) and raises
+    that of the cell of its return (``log_odds_hit``); a "no return" beam (inf, or ≥ the
+    scan's max_range) clears up to ``no_return_clear_m``; beams at or below
+    ``min_range_m`` or NaN are ignored. A cell takes one update per scan, a return first.
+    Then the cells within ``footprint_radius_m`` of a pose are set to the free limit, and
+    every cell a map curve passes through to the occupied limit.
 
     Args:
-        polylines: list of (k, 2) world points (m), e.g. map splines sampled densely;
-            every cell they pass through becomes occupied.
-        resolution_m: cell size (m).
-        margin_m: unknown border around everything drawn (m).
-        free_rays: optional iterable of (origin (2,), endpoints (m, 2)) in world
-            coordinates (m); cells a ray traverses become free (drawn before the
-            occupied cells, which win).
+        scans: one (LaserScan, laser offset (3,) in the robot frame (m, rad)) per pose.
+        poses: (N, 3) robot poses (m, rad), one per scan (e.g. the final trajectory).
+        config: the ``grid`` section (resolution, log-odds, limits).
+        polylines: map curves as (k, 2) world points (m), e.g. the splines sampled densely.
 
     Returns:
-        grid: (H, W) uint8 with 0 occupied, 254 free, 205 unknown; row 0 = largest y.
-        origin: (x m, y m, θ = 0 rad) of the lower-left corner of the lower-left cell.
-        With nothing to draw, an all-unknown grid of ±``margin_m`` around (0, 0).
+        The grid, just large enough for every pose, laser position, beam end and curve
+        point plus ``margin_m``; with nothing to draw, ±``margin_m`` around (0, 0).
 
     Raises:
-        InputError: non-positive resolution or negative margin.
+        InputError: scans and poses of different lengths, or a grid that would exceed
+            ``grid.max_cells`` (a wild range or pose).
     """
-    if not resolution_m > 0 or not margin_m >= 0:
-        raise InputError(f"resolution_m must be > 0 and margin_m ≥ 0, got {resolution_m}, {margin_m}")
+    poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+    if len(scans) != len(poses):
+        raise InputError(f"{len(scans)} scans but {len(poses)} poses")
+    res = config.resolution_m
     occ_starts, occ_ends = _polyline_segments(polylines)
-    ray_starts, ray_ends, ray_hits = _ray_segments(free_rays or (), resolution_m)
-    everything = np.concatenate([occ_starts, occ_ends, ray_starts, ray_hits])
-    if len(everything) == 0:
-        # an empty map (e.g. a run too short to map anything) is still a valid, unknown grid
-        everything = np.zeros((1, 2))
-
-    low = everything.min(axis=0) - margin_m
-    high = everything.max(axis=0) + margin_m
-    width, height = np.maximum(np.ceil((high - low) / resolution_m).astype(int), 1)
-    grid = np.full((height, width), UNKNOWN, dtype=np.uint8)
-
-    def paint(points: np.ndarray, value: int) -> None:
-        cols = np.floor((points[:, 0] - low[0]) / resolution_m).astype(np.int64)
-        rows_up = np.floor((points[:, 1] - low[1]) / resolution_m).astype(np.int64)
-        cols = np.clip(cols, 0, width - 1)
-        rows = height - 1 - np.clip(rows_up, 0, height - 1)
-        grid[rows, cols] = value
-
-    step = resolution_m / _SAMPLES_PER_CELL
-    if len(ray_starts):
-        paint(_sample_segments(ray_starts, ray_ends, step), FREE)
-    if len(occ_starts):
-        paint(_sample_segments(occ_starts, occ_ends, step), OCCUPIED)
-    return grid, (float(low[0]), float(low[1]), 0.0)
+    low, high = np.full(2, np.inf), np.full(2, -np.inf)
+    for batch in _beam_batches(scans, poses, config):
+        for pts in (batch.origins[np.diff(batch.beam_start) > 0], batch.ends):
+            if len(pts):
+                low, high = np.minimum(low, pts.min(axis=0)), np.maximum(high, pts.max(axis=0))
+    robot = poses[np.all(np.isfinite(poses[:, :2]), axis=1), :2]
+    for pts in (occ_starts, occ_ends, robot):
+        if len(pts):
+            low, high = np.minimum(low, pts.min(axis=0)), np.maximum(high, pts.max(axis=0))
+    if not np.all(np.isfinite(low)):
+        # nothing observed (e.g. a run too short to map anything): still a valid, unknown grid
+        low, high = np.zeros(2), np.zeros(2)
+    low, high = low - config.margin_m, high + config.margin_m
+    size = np.maximum(np.ceil((high - low) / res), 1.0)   # float: a wild extent cannot overflow
+    if size[0] * size[1] > config.max_cells:
+        raise InputError(
+            f"the occupancy grid would have {size[0]:.3g} × {size[1]:.3g} cells, more than grid.max_cells = "
+            f"{config.max_cells}: x ∈ [{low[0]:.6g}, {high[0]:.6g}] m, y ∈ [{low[1]:.6g}, {high[1]:.6g}] m "
+            f"(a wild range or pose?); raise grid.max_cells or grid.resolution_m")
+    width, height = int(size[0]), int(size[1])
+    log_odds = np.zeros((height, width), dtype=np.float32)     # y-up while building
+    stamp = np.full((height, width), -1, dtype=np.int64)
+    for batch in _beam_batches(scans, poses, config):
+        integrate_scans(log_odds, stamp, batch.first_scan, (batch.origins - low) / res, batch.beam_start,
+                        (batch.ends - low) / res, batch.hit, np.float32(config.log_odds_hit),
+                        np.float32(config.log_odds_miss), np.float32(config.log_odds_limit))
+    del stamp
+    _clear_footprints(log_odds, (poses[:, :2] - low) / res, config.footprint_radius_m / res, -config.log_odds_limit)
+    draw_segments(log_odds, (occ_starts - low) / res, (occ_ends - low) / res, np.float32(config.log_odds_limit))
+    return OccupancyGrid(np.ascontiguousarray(log_odds[::-1]), (float(low[0]), float(low[1]), 0.0), float(res))
 
 
 def _image_reference(pgm: PathOrFile, yaml_target: PathOrFile) -> str:
@@ -147,15 +223,20 @@ def _image_reference(pgm: PathOrFile, yaml_target: PathOrFile) -> str:
 
 
 def write_grid(pgm_path: PathOrFile, yaml_path: PathOrFile, grid: np.ndarray,
-               origin: Sequence[float], resolution_m: float) -> None:
-    """Write ``grid`` as a binary PGM (P5, maxval 255) and its map_server YAML.
+               origin: Sequence[float], resolution_m: float, occupied_thresh: float = 0.65,
+               free_thresh: float = 0.196) -> None:
+    """Write a trinary image as a binary PGM (P5, maxval 255, by Pillow) and its map_server
+    YAML (``negate: 0``, ``mode: trinary``).
 
     Args:
         pgm_path: path or binary file for the image.
         yaml_path: path or text file for the description.
-        grid: (H, W) uint8 as returned by :func:`render_grid`.
+        grid: (H, W) uint8 trinary image, e.g. :meth:`OccupancyGrid.image`; row 0 = top.
         origin: (x m, y m, θ rad) of the lower-left corner.
         resolution_m: cell size (m).
+        occupied_thresh, free_thresh: the probabilities map_server classifies with; with
+            ``1/255 < free_thresh < 50/255 < occupied_thresh < 1`` it reads 0, 254 and 205
+            back as occupied, free and unknown.
 
     Raises:
         InputError: a grid that is not a 2-D uint8 array, or an unwritable file.
@@ -163,17 +244,15 @@ def write_grid(pgm_path: PathOrFile, yaml_path: PathOrFile, grid: np.ndarray,
     grid = np.asarray(grid)
     if grid.ndim != 2 or grid.dtype != np.uint8:
         raise InputError(f"grid must be a 2-D uint8 array, got {grid.dtype} {grid.shape}")
-    height, width = grid.shape
     with open_path_or_file(pgm_path, "wb") as f:
-        f.write(f"P5\n{width} {height}\n255\n".encode("ascii"))
-        f.write(np.ascontiguousarray(grid).tobytes())
+        Image.fromarray(np.ascontiguousarray(grid)).save(f, format="PPM")   # uint8 (H, W) → "L" → P5
     description = {
         "image": _image_reference(pgm_path, yaml_path),
         "resolution": float(resolution_m),
         "origin": [float(v) for v in origin],
         "negate": 0,
-        "occupied_thresh": 0.65,
-        "free_thresh": 0.196,
+        "occupied_thresh": float(occupied_thresh),
+        "free_thresh": float(free_thresh),
         "mode": "trinary",
     }
     with open_path_or_file(yaml_path, "w") as f:

@@ -13,6 +13,8 @@ from bsslam.viz.consistency_plots import plot_errors_with_bounds, plot_nees, plo
 from bsslam.viz.figures import new_figure, save_figure  # noqa: E402
 from bsslam.viz.map_figure import save_map_figure  # noqa: E402
 from bsslam.viz.map_plots import (  # noqa: E402
+    MapStyle,
+    map_style,
     plot_points,
     plot_pose_ellipses,
     plot_splines,
@@ -21,6 +23,8 @@ from bsslam.viz.map_plots import (  # noqa: E402
 )
 
 __all__ = [
+    "MapStyle",
+    "map_style",
     "new_figure",
     "plot_errors_with_bounds",
     "plot_nees",

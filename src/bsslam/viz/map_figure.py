@@ -11,7 +11,8 @@ import numpy as np
 
 from bsslam.errors import InputError
 from bsslam.viz.figures import new_figure, save_figure
-from bsslam.viz.map_plots import Curve, plot_points, plot_pose_ellipses, plot_splines, plot_trajectory, plot_walls
+from bsslam.viz.map_plots import (Curve, map_style, plot_points, plot_pose_ellipses, plot_splines, plot_trajectory,
+                                  plot_walls)
 
 
 def save_map_figure(
@@ -25,6 +26,7 @@ def save_map_figure(
     odom_poses: np.ndarray | None = None,
     points: np.ndarray | None = None,
     title: str = "",
+    control_points: bool = False,
 ) -> list[Path]:
     """Draw one map figure and write it to every path (format from the suffix, e.g. PNG at
     150 dpi and SVG).
@@ -38,28 +40,37 @@ def save_map_figure(
         points: (k, 2) scan points (m), drawn as faint dots under everything (thinned and
             rasterised when many).
         title: figure title.
+        control_points: also draw the splines' control points and polygons.
+
+    Line widths and marker sizes follow the map's extent (:func:`map_style`).
 
     Returns:
         The paths written.
     """
     if est_covariances is not None and est_poses is None:
         raise InputError("est_covariances given without est_poses")
+    curves = list(curves)
+    lo, hi = _map_bounds(curves, walls, true_poses, est_poses)
+    style = map_style(float(np.max(hi - lo)))
     fig = new_figure()
     ax = fig.add_subplot()
     if points is not None:
         plot_points(ax, points)
     if walls is not None:
-        plot_walls(ax, walls)
-    plot_splines(ax, curves)
+        plot_walls(ax, walls, linewidth=0.75 * style.spline_linewidth)
+    plot_splines(ax, curves, control_points=control_points, style=style)
     if odom_poses is not None:
-        plot_trajectory(ax, odom_poses, "odometry", color="tab:orange", linewidth=0.8)
+        plot_trajectory(ax, odom_poses, "odometry", color="tab:orange", linewidth=0.8 * style.trajectory_linewidth)
     if true_poses is not None:
-        plot_trajectory(ax, true_poses, "ground truth", color="tab:green", linewidth=1.0)
+        plot_trajectory(ax, true_poses, "ground truth", color="tab:green", linewidth=style.trajectory_linewidth)
     if est_poses is not None:
-        plot_trajectory(ax, est_poses, "estimate", color="tab:blue", linewidth=1.0)
+        plot_trajectory(ax, est_poses, "estimate", color="tab:blue", linewidth=style.trajectory_linewidth)
         if est_covariances is not None:
-            plot_pose_ellipses(ax, est_poses, est_covariances)
-    _frame_map(ax, curves, walls, true_poses, est_poses)
+            plot_pose_ellipses(ax, est_poses, est_covariances, linewidth=style.ellipse_linewidth)
+    if np.all(hi >= lo):
+        pad = 0.05 * max(float(np.max(hi - lo)), 1.0)
+        ax.set_xlim(lo[0] - pad, hi[0] + pad)
+        ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
@@ -72,16 +83,15 @@ def save_map_figure(
     return save_figure(fig, paths)
 
 
-def _frame_map(ax, curves, walls, true_poses, est_poses, margin: float = 0.05) -> None:
-    """Limit the axes to the map and the estimated and true paths: raw odometry on a real
-    log can drift tens of metres away and would shrink the map to a corner."""
+def _map_bounds(curves, walls, true_poses, est_poses) -> tuple[np.ndarray, np.ndarray]:
+    """(2,) lower and upper corners of the map and the estimated and true paths (m); empty
+    (lo > hi) when there is nothing. Raw odometry is left out: on a real log it can drift
+    tens of metres away and would shrink the map to a corner."""
     parts = [np.asarray(w, dtype=float).reshape(-1, 2) for w in (walls or [])]
-    parts += [c.control_points for c in curves]
+    parts += [np.asarray(c.control_points, dtype=float) for c in curves]
     parts += [np.asarray(p, dtype=float)[:, :2] for p in (true_poses, est_poses) if p is not None and len(p)]
+    parts = [p for p in parts if len(p)]
     if not parts:
-        return
+        return np.full(2, np.inf), np.full(2, -np.inf)
     xy = np.vstack(parts)
-    lo, hi = xy.min(axis=0), xy.max(axis=0)
-    pad = margin * max(float(np.max(hi - lo)), 1.0)
-    ax.set_xlim(lo[0] - pad, hi[0] + pad)
-    ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    return xy.min(axis=0), xy.max(axis=0)
