@@ -3,12 +3,21 @@
 Built in one place (:func:`SLAMConfig.from_dict`, used by the YAML loader in
 ``bsslam.io.config_file``) and written next to every run's results.
 Names carry their units: ``_m`` metres, ``_rad`` radians.
+
+Values are typed by the dataclass annotations, checked in :func:`SLAMConfig.from_dict`
+before any work: a ``bool`` field takes only true/false (never ``'no'`` or ``0``), an
+``int`` only integers (not ``8.5``), a ``float`` any finite number; each section's
+``__post_init__`` then checks the ranges, with upper bounds where a value sizes an
+allocation (the scan matcher's search grids and likelihood fields) or stops making
+physical sense (σ of metres beyond 10 m, of angles beyond 2π).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import types
+import typing
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -18,6 +27,77 @@ from bsslam.errors import ConfigError
 def _check(condition: bool, message: str) -> None:
     if not condition:
         raise ConfigError(message)
+
+
+# physical ceilings shared by several sections
+MAX_SIGMA_M = 10.0          # a standard deviation of a range or position beyond 10 m says nothing
+MAX_SIGMA_RAD = 2 * math.pi   # … of an angle beyond a full turn
+MAX_FACTOR = 1e6            # inflation factors on variances
+
+
+def _kind(value: Any) -> str:
+    if value is None:
+        return "null"
+    text = repr(value)
+    return f"{text if len(text) <= 40 else text[:37] + '...'} ({type(value).__name__})"
+
+
+def _typed(value: Any, hint: Any, key: str, nullable: bool = False) -> Any:
+    """``value`` checked against the annotation ``hint`` (bool, int, float, str, Literal,
+    X | None, tuple[...]) and converted where lossless (an integer for a float field).
+
+    Raises:
+        ConfigError: naming ``key`` and the expected type.
+    """
+    def wrong(expected: str, detail: str = "") -> ConfigError:
+        return ConfigError(f"{key}: expected {expected}{' or null' if nullable else ''}{detail}, got {_kind(value)}")
+
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (types.UnionType, typing.Union):
+        inner = [a for a in args if a is not type(None)]
+        if len(inner) != 1 or len(args) != 2:
+            raise TypeError(f"unsupported annotation {hint!r} of {key}")   # a programming error
+        return None if value is None else _typed(value, inner[0], key, nullable=True)
+    if origin is Literal:
+        if isinstance(value, str) and value in args:
+            return value
+        raise wrong("one of " + ", ".join(map(repr, args)))
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)) or len(value) != len(args):
+            raise wrong(f"a list of {len(args)} values")
+        return tuple(_typed(v, a, f"{key}[{i}]") for i, (v, a) in enumerate(zip(value, args)))
+    if hint is bool:
+        if isinstance(value, bool):
+            return value
+        raise wrong("true or false")
+    if hint is int:
+        # every integer setting is a count or a degree; 2³¹ also keeps them inside the
+        # compiled kernels' int64 arithmetic
+        if isinstance(value, int) and not isinstance(value, bool) and abs(value) < 2 ** 31:
+            return value
+        raise wrong("an integer", " below 2³¹" if isinstance(value, int) and not isinstance(value, bool) else "")
+    if hint is float:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            try:
+                number = float(value)
+            except OverflowError:
+                number = math.inf
+            if math.isfinite(number):
+                return number
+            raise wrong("a finite number")
+        raise wrong("a number")
+    if hint is str:
+        if isinstance(value, str):
+            return value
+        raise wrong("a string")
+    raise TypeError(f"unsupported annotation {hint!r} of {key}")
+
+
+def _typed_fields(cls: type, values: dict[str, Any], prefix: str) -> dict[str, Any]:
+    """``values`` (keys already known to be fields of dataclass ``cls``) typed by its
+    annotations; keys named ``prefix.key`` in errors."""
+    hints = typing.get_type_hints(cls)
+    return {name: _typed(value, hints[name], f"{prefix}{name}") for name, value in values.items()}
 
 
 @dataclass(frozen=True)
@@ -79,6 +159,9 @@ class SegmentationConfig:
         _check(self.min_points >= 2, "segmentation.min_points must be ≥ 2")
         _check(self.min_length_m >= 0, "segmentation.min_length_m must be ≥ 0")
         _check(self.min_range_m >= 0, "segmentation.min_range_m must be ≥ 0")
+        # a limit at or below the minimum range makes every beam "no return": an empty map
+        _check(self.no_return_m is None or self.no_return_m > self.min_range_m,
+               f"segmentation.no_return_m must be > min_range_m ({self.min_range_m}) or null, got {self.no_return_m!r}")
 
 
 @dataclass(frozen=True)
@@ -100,6 +183,9 @@ class MotionNoiseConfig:
     def __post_init__(self) -> None:
         for name in ("a_xy_m", "b_xy", "a_phi_rad", "b_phi", "b_phi_per_m_rad"):
             _check(getattr(self, name) >= 0, f"motion.{name} must be ≥ 0")
+        for name, ceiling in (("a_xy_m", MAX_SIGMA_M), ("b_xy", 10.0), ("a_phi_rad", MAX_SIGMA_RAD),
+                              ("b_phi", 10.0), ("b_phi_per_m_rad", MAX_SIGMA_RAD)):
+            _check(getattr(self, name) <= ceiling, f"motion.{name} must be ≤ {ceiling:g}, got {getattr(self, name)!r}")
 
 
 @dataclass(frozen=True)
@@ -140,13 +226,13 @@ class ObservationConfig:
     iteration_tolerance: float = 0.1
 
     def __post_init__(self) -> None:
-        _check(self.sigma_range_m > 0, "observation.sigma_range_m must be > 0")
-        _check(self.sigma_model_m >= 0, "observation.sigma_model_m must be ≥ 0")
-        _check(self.r_inflation > 0, "observation.r_inflation must be > 0")
+        _check(0 < self.sigma_range_m <= MAX_SIGMA_M, f"observation.sigma_range_m must be in (0, {MAX_SIGMA_M:g}] m")
+        _check(0 <= self.sigma_model_m <= MAX_SIGMA_M, f"observation.sigma_model_m must be in [0, {MAX_SIGMA_M:g}] m")
+        _check(0 < self.r_inflation <= MAX_FACTOR, f"observation.r_inflation must be in (0, {MAX_FACTOR:g}]")
         _check(0 < self.gate_probability < 1, "observation.gate_probability must be in (0, 1)")
         _check(0 < self.max_incidence_rad < math.pi / 2, "observation.max_incidence_rad must be in (0, π/2)")
         _check(self.beam_stride >= 1, "observation.beam_stride must be ≥ 1")
-        _check(self.iterations >= 1, "observation.iterations must be ≥ 1")
+        _check(1 <= self.iterations <= 100, "observation.iterations must be 1..100")
         _check(self.iteration_tolerance >= 0, "observation.iteration_tolerance must be ≥ 0")
 
 
@@ -389,13 +475,56 @@ class FrontendConfig:
         for name in ("max_scan_points", "search_points", "submap_keyframes", "submap_rebuild_every", "coarse_candidates",
                      "icp_iterations", "min_points"):
             _check(getattr(self, name) >= 1, f"frontend.{name} must be ≥ 1, got {getattr(self, name)!r}")
-        _check(self.normal_neighbours >= 3, "frontend.normal_neighbours must be ≥ 3")
+        _check(3 <= self.normal_neighbours <= 50, "frontend.normal_neighbours must be 3..50")
+        self._check_ceilings()
         _check(self.icp_min_distance_m <= self.icp_max_distance_m,
                "frontend.icp_min_distance_m must be ≤ icp_max_distance_m")
         _check(0 <= self.min_inlier_fraction <= 1, "frontend.min_inlier_fraction must be in [0, 1]")
         _check(self.search_window_rad < math.pi, "frontend.search_window_rad must be < π")
         _check(self.fine_step_m <= self.coarse_step_m and self.fine_step_rad <= self.coarse_step_rad,
                "frontend fine steps must not exceed the coarse ones")
+
+    def _check_ceilings(self) -> None:
+        """Upper bounds: σ and factors that make no physical sense, and the sizes of the
+        correlative search (grids of offsets × rotations, likelihood fields), which grow with
+        the square of window / step: a 10 km window once asked for 596 GiB."""
+        for name in ("range_sigma_m", "min_sigma_xy_m", "odom_sigma_xy_m"):
+            _check(getattr(self, name) <= MAX_SIGMA_M, f"frontend.{name} must be ≤ {MAX_SIGMA_M:g} m")
+        for name in ("min_sigma_rad", "odom_sigma_rad", "odom_sigma_rad_per_m"):
+            _check(getattr(self, name) <= MAX_SIGMA_RAD, f"frontend.{name} must be ≤ 2π")
+        for name in ("odom_sigma_xy_per_m", "odom_sigma_rad_per_rad"):
+            _check(getattr(self, name) <= 10.0, f"frontend.{name} must be ≤ 10")
+        _check(self.covariance_inflation <= MAX_FACTOR, f"frontend.covariance_inflation must be ≤ {MAX_FACTOR:g}")
+        _check(self.degenerate_ratio <= 1, "frontend.degenerate_ratio must be ≤ 1")
+        _check(self.max_range_m <= MAX_LASER_RANGE_M,
+               f"frontend.max_range_m must be ≤ {MAX_LASER_RANGE_M:g} m (2D laser scanners reach ~80 m)")
+        _check(self.search_window_m <= MAX_SEARCH_WINDOW_M,
+               f"frontend.search_window_m must be ≤ {MAX_SEARCH_WINDOW_M:g} m (the worst odometry error between "
+               f"scans of the real logs is ~0.46 m), got {self.search_window_m!r}")
+        _check(self.search_window_m / self.coarse_step_m <= MAX_STEPS_PER_WINDOW,
+               f"frontend.search_window_m / coarse_step_m must be ≤ {MAX_STEPS_PER_WINDOW} (coarse offsets per side)")
+        _check(self.search_window_rad / self.coarse_step_rad <= MAX_STEPS_PER_WINDOW,
+               f"frontend.search_window_rad / coarse_step_rad must be ≤ {MAX_STEPS_PER_WINDOW}")
+        _check(self.coarse_step_m / self.fine_step_m <= MAX_FINE_PER_COARSE
+               and self.coarse_step_rad / self.fine_step_rad <= MAX_FINE_PER_COARSE,
+               f"frontend.coarse_step_m / fine_step_m and coarse_step_rad / fine_step_rad must be "
+               f"≤ {MAX_FINE_PER_COARSE} (fine offsets per coarse step)")
+        for level, cell, sigma in (("coarse", self.coarse_step_m / 2, self.coarse_sigma_m),
+                                   ("fine", self.fine_step_m, self.fine_sigma_m)):
+            side = 2 * (self.max_range_m + 2 * self.search_window_m + 3 * sigma) / cell
+            _check(side <= MAX_FIELD_CELLS,
+                   f"frontend: the {level} likelihood field would be {side:.0f} cells wide (2·(max_range_m + "
+                   f"2·search_window_m + 3·{level}_sigma_m) / cell); at most {MAX_FIELD_CELLS}: "
+                   f"raise {level}_step_m or lower max_range_m")
+            _check(sigma <= 10 * cell, f"frontend.{level}_sigma_m must be ≤ 10 cells of its field ({10 * cell:g} m)")
+
+
+# ceilings of the front end's search (see FrontendConfig._check_ceilings)
+MAX_LASER_RANGE_M = 100.0
+MAX_SEARCH_WINDOW_M = 5.0
+MAX_STEPS_PER_WINDOW = 90
+MAX_FINE_PER_COARSE = 20
+MAX_FIELD_CELLS = 8000     # per side: 64 M float32 cells, 256 MB
 
 
 @dataclass(frozen=True)
@@ -429,6 +558,8 @@ class SLAMConfig:
         _check(isinstance(self.relocalize, bool), f"relocalize must be true or false, got {self.relocalize!r}")
         _check(len(self.initial_pose_sigma) == 3 and all(s >= 0 for s in self.initial_pose_sigma),
                "initial_pose_sigma must be three values ≥ 0")
+        _check(max(self.initial_pose_sigma[:2]) <= 1000.0 and self.initial_pose_sigma[2] <= MAX_SIGMA_RAD,
+               "initial_pose_sigma must be ≤ 1000 m (x, y) and ≤ 2π (φ)")
 
     def to_dict(self) -> dict[str, Any]:
         """Nested plain dict (YAML/JSON-ready)."""
@@ -438,7 +569,13 @@ class SLAMConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None) -> "SLAMConfig":
-        """Build from a nested dict; unknown keys are an error (no silent typos)."""
+        """Build from a nested dict; unknown keys are an error (no silent typos), every value
+        is checked against its field's type (see the module docstring) and range.
+
+        Raises:
+            ConfigError: an unknown key, a section that is not a mapping, a value of the
+                wrong type (naming ``section.key`` and the expected type) or out of range.
+        """
         data = dict(data or {})
         sections = {f.name: f for f in dataclasses.fields(cls)}
         kwargs: dict[str, Any] = {}
@@ -453,14 +590,9 @@ class SLAMConfig:
                 unknown = set(value) - known
                 if unknown:
                     raise ConfigError(f"unknown key(s) {sorted(unknown)} in section {key!r}; known: {sorted(known)}")
-                try:
-                    kwargs[key] = sub(**value)
-                except TypeError as exc:
-                    raise ConfigError(f"section {key!r}: {exc}") from None
-            elif key == "initial_pose_sigma":
-                kwargs[key] = tuple(float(v) for v in value)
+                kwargs[key] = sub(**_typed_fields(sub, value, f"{key}."))
             else:
-                kwargs[key] = value
+                kwargs.update(_typed_fields(cls, {key: value}, ""))
         return cls(**kwargs)
 
     def replace(self, **sections: Any) -> "SLAMConfig":

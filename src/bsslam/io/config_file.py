@@ -1,9 +1,13 @@
 """The configuration as a YAML file: the nested sections of :class:`SLAMConfig`.
 
 An empty file is the default configuration; any section or key left out keeps its default.
+Numbers are read as YAML 1.2 writes them: ``1e9`` and ``1.0e9`` are floats (PyYAML's YAML 1.1
+rules read both as strings).
 """
 
 from __future__ import annotations
+
+import re
 
 import yaml
 
@@ -12,17 +16,43 @@ from bsslam.errors import ConfigError, InputError
 from bsslam.io.path_or_file import PathOrFile, describe, open_path_or_file
 
 
+_FLOAT_TAG = "tag:yaml.org,2002:float"
+
+# YAML 1.2 core schema floats, plus 1.1's forms that PyYAML already reads (1_000.5, .5)
+_YAML12_FLOAT = re.compile(r"""^(?:
+     [-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+    |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+    |[-+]?\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+    |[-+]?\.(?:inf|Inf|INF)
+    |\.(?:nan|NaN|NAN))$""", re.X)
+
+
+class ConfigLoader(yaml.SafeLoader):
+    """PyYAML's safe loader with YAML 1.2 floats: ``1e9``, ``1.0e9``, ``-2E-3`` are numbers,
+    not strings. (The int resolver comes first and matches only plain integers.)"""
+
+
+ConfigLoader.yaml_implicit_resolvers = {
+    first: [(tag, regexp) for tag, regexp in resolvers if tag != _FLOAT_TAG]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+ConfigLoader.add_implicit_resolver(_FLOAT_TAG, _YAML12_FLOAT, list("-+0123456789."))
+
+
 def load_config(source: PathOrFile) -> SLAMConfig:
     """Read a YAML configuration.
 
+    The values are typed and checked (:func:`SLAMConfig.from_dict`) here, before any work.
+
     Raises:
         ConfigError: missing/unreadable file, invalid YAML, a top level that is not a
-            mapping, or an unknown/invalid value; the message names the file.
+            mapping, an unknown key, or a value of the wrong type or out of range; the
+            message names the file and the key (``section.key``).
     """
     name = describe(source)
     try:
         with open_path_or_file(source) as f:
-            data = yaml.safe_load(f)
+            data = yaml.load(f, Loader=ConfigLoader)
     except InputError as exc:
         raise ConfigError(str(exc)) from None
     except yaml.YAMLError as exc:
