@@ -139,9 +139,17 @@ class SegmentationConfig:
         min_points: fewest points in a segment (n_pr).
         min_length_m: shortest segment kept (chord length, m); shorter ones are dropped
             as small or dynamic objects.
-        min_range_m: beams at or below this range are invalid (m).
-        no_return_m: ranges at or above this value mean "no return" (m); None uses the
-            scan's own max_range only.
+        min_range_m: beams at or below this range are invalid (m). The same quantity as
+            ``frontend.min_range_m`` (the laser's shortest valid range), with the same
+            default; the front end reads only its own section, so set both for a laser whose
+            minimum differs.
+        no_return_m: ranges at or above this value mean "no return" to the map (m); None
+            (the default) uses the scan's own ``max_range`` only. Not the reader's
+            ``ReaderConfig.no_return_m`` (80 m): that one says which raw values in a *log* are
+            the logger's no-return code (a property of the recording; the reader turns them
+            into +inf and lowers the scan's ``max_range`` to it); this one is an optional,
+            lower limit of the *filter*, e.g. to keep sparse far beams out of the map. It
+            must exceed ``min_range_m``, or every beam would be "no return".
     """
 
     alpha_max_rad: float = math.radians(30.0)
@@ -168,6 +176,15 @@ class SegmentationConfig:
 class MotionNoiseConfig:
     """Odometry noise, σ = a + b·|Δ| per component of the increment (paper §IV).
 
+    The filter's prediction uses this model only for increments that come without a
+    covariance: the raw odometry when the front end is off (the simulator's experiments, which
+    also draw their odometry noise from it). With the front end on, the filter gets the scan
+    matcher's covariance, and the front end's own odometry model (``frontend.odom_sigma_*``)
+    is its prior. The two differ on purpose: this one describes the paper's (and the
+    simulator's) odometry — 1 mm + 10 % of the step; the front end's must cover real wheel
+    odometry, off by up to ~20° in one step of the 1 Hz Intel log, since a prior narrower
+    than the true error would pull a good match towards the odometry.
+
     Attributes:
         a_xy_m, b_xy: σ of Δx and Δy: a_xy_m + b_xy·|Δ| (m).
         a_phi_rad, b_phi: σ of Δφ: a_phi_rad + b_phi·|Δφ| (rad).
@@ -193,7 +210,12 @@ class ObservationConfig:
     """The range observation model and its gates (paper §III-D, §III-E).
 
     Attributes:
-        sigma_range_m: σ of one laser range (m). The default is for real lasers and
+        sigma_range_m: σ of one laser range against the map spline it hits (m), in the
+            filter's update. Not ``frontend.range_sigma_m`` (0.02 m): that one is the stated
+            floor of the scan matcher's point-to-line residual against the neighbouring
+            reference points' local line, which sees no spline's shape error, and is
+            replaced by the residuals' own σ when larger and then inflated ×10
+            (``covariance_inflation``). The default here is for real lasers and
             buildings: a SICK LMS's few-centimetre range error plus walls that are not the
             smooth curves a spline draws (door frames, skirting, posters). The simulator's
             experiments set it to the simulated 5 mm.
@@ -332,7 +354,8 @@ class FrontendConfig:
         between only feed the front end. 0 and 0 process every scan.
 
     Beams and points
-        min_range_m: beams at or below this range are dropped (m).
+        min_range_m: beams at or below this range are dropped (m); the same quantity and
+            default as ``segmentation.min_range_m`` (set both together).
         max_range_m: beams at or beyond this range are dropped (m). Far points move a lot
             for a small rotation error and are sparse; 30 m keeps the ends of long corridors
             (CSAIL, ACES), which are what fixes the motion along them.
@@ -382,7 +405,8 @@ class FrontendConfig:
     Covariance
         range_sigma_m: stated σ of one point-to-line residual (m): range noise plus wall
             roughness and the reference's own noise; the larger of it and the σ estimated
-            from the residuals is used.
+            from the residuals is used. Not ``observation.sigma_range_m``, the filter's σ of
+            a range against a map spline (see there).
         covariance_inflation: the Gauss–Newton covariance assumes independent residuals;
             neighbouring points of one real wall are not, so it is multiplied by this
             factor. Without it the covariance is consistent on the simulator (independent
@@ -396,7 +420,8 @@ class FrontendConfig:
         odom_sigma_xy_m, odom_sigma_xy_per_m: σ of Δx, Δy = a + b·|Δ| (m, m/m).
         odom_sigma_rad, odom_sigma_rad_per_rad, odom_sigma_rad_per_m: σ of Δφ =
             a + b·|Δφ| + c·|Δ| (rad, rad/rad, rad/m). Wide: the real wheel odometry of the
-            1 Hz Intel log is off by up to ~20° in one step.
+            1 Hz Intel log is off by up to ~20° in one step. The same form as the filter's
+            ``motion`` model but not its values (see :class:`MotionNoiseConfig` for why).
 
     Trust
         min_points: fewer valid points in the scan or in the reference → fall back.
