@@ -49,7 +49,7 @@ def one_line_error(result, code=2):
     assert isinstance(result.exception, SystemExit)          # no traceback
     assert "Traceback" not in result.output
     # the progress bar may have drawn before the error; the message itself is one line
-    lines = [line for line in result.output.splitlines() if line.startswith(("error:", "interrupted:"))]
+    lines = [line for line in result.output.splitlines() if line.startswith(("error:", "interrupted"))]
     assert len(lines) == 1 and lines[0] == result.output.rstrip().splitlines()[-1], result.output
     return lines[0]
 

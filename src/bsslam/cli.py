@@ -106,8 +106,9 @@ def signals_interrupt() -> Iterator[None]:
 
 def interrupted(run_dir: Path | None, reason: str) -> None:
     """One line on stderr and exit 130."""
-    where = f"; the run folder {run_dir} says so" if run_dir is not None else ""
-    console.print(f"[yellow]interrupted:[/yellow] {escape(reason)}{escape(where)}", soft_wrap=True)
+    where = (f": {run_dir} is marked interrupted; {run_dir.parent / 'latest'} stays on the last complete run"
+             if run_dir is not None else "")
+    console.print(f"[yellow]{escape(reason)}[/yellow]{escape(where)}", soft_wrap=True)
     raise typer.Exit(EXIT_INTERRUPTED)
 
 
