@@ -45,7 +45,8 @@ def test_a_value_of_the_wrong_type_names_file_key_and_type(tmp_path, text, key, 
     with pytest.raises(ConfigError) as info:
         load_text(tmp_path, text)
     message = str(info.value)
-    assert message.startswith(f"{tmp_path / 'bad.yaml'}: {key}: expected {words}"), message
+    line = text.count("\n")     # the bad value is on the last line of each text
+    assert message.startswith(f"{tmp_path / 'bad.yaml'}:{line}: {key}: expected {words}"), message
 
 
 # values of the right type outside what is physical or affordable
@@ -73,7 +74,17 @@ def test_a_value_out_of_range_names_file_and_key(tmp_path, text, key):
     with pytest.raises(ConfigError) as info:
         load_text(tmp_path, text)
     message = str(info.value)
-    assert message.startswith(f"{tmp_path / 'bad.yaml'}: ") and key in message, message
+    assert message.startswith(f"{tmp_path / 'bad.yaml'}:") and key in message, message
+
+
+def test_the_line_is_that_of_the_key_even_in_a_longer_file(tmp_path):
+    text = "# my settings\nspline:\n  degree: 2\n\nfrontend:\n  enabled: true\n  max_range_m: 100\n  fine_step_m: 0.02\n"
+    with pytest.raises(ConfigError) as info:
+        load_text(tmp_path, text)
+    assert str(info.value).startswith(f"{tmp_path / 'bad.yaml'}:5: frontend: the fine likelihood field")
+    with pytest.raises(ConfigError) as info:
+        load_text(tmp_path, text.replace("enabled: true", "enabled: 'yes'"))
+    assert str(info.value).startswith(f"{tmp_path / 'bad.yaml'}:6: frontend.enabled: expected true or false")
 
 
 def test_yaml_1_2_floats_are_numbers(tmp_path):

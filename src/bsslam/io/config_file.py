@@ -47,12 +47,18 @@ def load_config(source: PathOrFile) -> SLAMConfig:
     Raises:
         ConfigError: missing/unreadable file, invalid YAML, a top level that is not a
             mapping, an unknown key, or a value of the wrong type or out of range; the
-            message names the file and the key (``section.key``).
+            message names the file, the line of the value where it is in the file, and
+            the key (``section.key``).
     """
     name = describe(source)
     try:
         with open_path_or_file(source) as f:
-            data = yaml.load(f, Loader=ConfigLoader)
+            loader = ConfigLoader(f)
+            try:
+                node = loader.get_single_node()    # kept to find the line of a bad value
+                data = None if node is None else loader.construct_document(node)
+            finally:
+                loader.dispose()
     except InputError as exc:
         raise ConfigError(str(exc)) from None
     except yaml.YAMLError as exc:
@@ -64,10 +70,35 @@ def load_config(source: PathOrFile) -> SLAMConfig:
     try:
         return SLAMConfig.from_dict(data)
     except ConfigError as exc:
-        raise ConfigError(f"{name}: {exc}") from None
+        line = _line_of_key(node, str(exc))
+        raise ConfigError(f"{name}:{line}: {exc}" if line is not None else f"{name}: {exc}") from None
     except (TypeError, ValueError) as exc:
         # e.g. a string where a number belongs reaches a comparison in __post_init__
         raise ConfigError(f"{name}: invalid value: {exc}") from None
+
+
+# the key a ConfigError's message starts with: "section.key: …", "section.key must …", "key[1]: …"
+_MESSAGE_KEY = re.compile(r"^([A-Za-z_]+(?:\.[A-Za-z_]+)?)(?:\[(\d+)\])?[:\s]")
+
+
+def _line_of_key(node: yaml.Node | None, message: str) -> int | None:
+    """The 1-based line of the value the message is about, or None when it names no key
+    present in the file (e.g. a check across two keys left at their defaults)."""
+    match = _MESSAGE_KEY.match(message)
+    if node is None or match is None:
+        return None
+    where = node
+    for part in match.group(1).split("."):
+        if not isinstance(node, yaml.MappingNode):
+            return None
+        pair = next(((key, value) for key, value in node.value if getattr(key, "value", None) == part), None)
+        if pair is None:
+            return None
+        where, node = pair     # the key's line: a section's values start on the next one
+    index = match.group(2)
+    if index is not None and isinstance(node, yaml.SequenceNode) and int(index) < len(node.value):
+        where = node.value[int(index)]
+    return where.start_mark.line + 1
 
 
 def write_config(target: PathOrFile, config: SLAMConfig) -> None:
