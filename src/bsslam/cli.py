@@ -5,6 +5,8 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import signal
+import threading
 from enum import Enum
 from pathlib import Path
 from typing import Iterator, Optional
@@ -23,7 +25,9 @@ experiment_app = typer.Typer(no_args_is_help=True, help="Reproduce the paper's e
 app.add_typer(experiment_app, name="experiment")
 console = Console(stderr=True)
 
-OUT_HELP = "Results folder: files go to DIR/<timestamp>/ and DIR/latest points at them."
+OUT_HELP = ("Results folder: files go to DIR/<timestamp>/; DIR/latest points at the newest "
+            "complete run.")
+EXIT_INTERRUPTED = 130   # 128 + SIGINT, what shells report for a Ctrl-C
 
 
 _compile_hint_shown = False
@@ -80,6 +84,58 @@ def fail(exc: Exception) -> None:
     raise typer.Exit(2)
 
 
+@contextlib.contextmanager
+def signals_interrupt() -> Iterator[None]:
+    """While inside, SIGTERM (and SIGINT) raise KeyboardInterrupt naming the signal, so a
+    ``kill`` ends a run as cleanly as a Ctrl-C: the run folder is marked and what results
+    exist are written. Only the main thread may set handlers; elsewhere this does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt(signal.Signals(signum).name)
+
+    previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def interrupted(run_dir: Path | None, reason: str) -> None:
+    """One line on stderr and exit 130."""
+    where = (f": {run_dir} is marked interrupted; {run_dir.parent / 'latest'} stays on the last complete run"
+             if run_dir is not None else "")
+    console.print(f"[yellow]{escape(reason)}[/yellow]{escape(where)}", soft_wrap=True)
+    raise typer.Exit(EXIT_INTERRUPTED)
+
+
+@contextlib.contextmanager
+def experiment_folder(out: Path, summary: dict) -> Iterator[Path]:
+    """The run folder of an experiment verb: yields it for the files; on a clean exit writes
+    ``summary.json`` (``summary`` plus status complete) and publishes the folder as
+    ``latest``; an interruption exits 130 and a BsslamError 2, the folder marked."""
+    from bsslam.io.results import interrupt_reason, run_folder, write_summary
+
+    run_dir = None
+    try:
+        with signals_interrupt(), run_folder(out) as run_dir:
+            yield run_dir
+            write_summary(run_dir, summary, "complete")
+    except KeyboardInterrupt as exc:
+        interrupted(run_dir, interrupt_reason(exc))
+    except BsslamError as exc:
+        fail(exc)
+
+
+def exit_if_partial(summary: dict, run_dir: Path) -> None:
+    """A partial result (the scans before an interruption, written and marked) exits 130."""
+    if summary.get("status") == "interrupted":
+        interrupted(run_dir, summary.get("reason", "interrupted"))
+
+
 def print_summary(summary: dict, title: str) -> None:
     table = Table(title=title, show_header=False)
     for key, value in summary.items():
@@ -118,7 +174,7 @@ def simulate(
 ) -> None:
     """One SLAM run in a simulated world with exact ground truth."""
     from bsslam.experiments.consistency import simulation_config
-    from bsslam.io.results import make_run_dir
+    from bsslam.io.results import interrupt_reason, run_folder
     from bsslam.outputs import write_outputs
     from bsslam.pipeline import run_dataset
     from bsslam.sim import WORLDS, SimConfig, get_world, simulate as simulate_world
@@ -128,20 +184,25 @@ def simulate(
         for name, w in WORLDS.items():
             typer.echo(f"{name:15s} {w.description}")
         return
+    run_dir = None
     try:
-        sim = SimConfig()
-        config = simulation_config(_load_config(config_file), sim)
-        data = simulate_world(get_world(world), sim, seed=seed, steps=steps)
-        run_dir = make_run_dir(out)
-        with progress_bar(f"SLAM in {world}", len(data.ground_truth), "scans") as update:
-            result = run_dataset(data, config, progress=update, total=len(data.ground_truth),
-                                 viewer=open_viewer(viewer, run_dir) if viewer else None)
-        summary = write_outputs(result, run_dir, config, walls=data.world.polylines(0.02),
-                                exact_reference=True, title=f"BS-SLAM in the simulated world '{world}' (seed {seed})",
-                                show_control_points=show_control_points)
+        with signals_interrupt():
+            sim = SimConfig()
+            config = simulation_config(_load_config(config_file), sim)
+            data = simulate_world(get_world(world), sim, seed=seed, steps=steps)
+            with run_folder(out) as run_dir:
+                with progress_bar(f"SLAM in {world}", len(data.ground_truth), "scans") as update:
+                    result = run_dataset(data, config, progress=update, total=len(data.ground_truth),
+                                         viewer=open_viewer(viewer, run_dir) if viewer else None)
+                summary = write_outputs(result, run_dir, config, walls=data.world.polylines(0.02), exact_reference=True,
+                                        title=f"BS-SLAM in the simulated world '{world}' (seed {seed})",
+                                        show_control_points=show_control_points)
+    except KeyboardInterrupt as exc:
+        interrupted(run_dir, interrupt_reason(exc))
     except BsslamError as exc:
         fail(exc)
     print_summary(summary, f"bsslam simulate --world {world}")
+    exit_if_partial(summary, run_dir)
     console.print(f"results in [bold]{run_dir}[/bold] (map picture: {run_dir / 'map.png'})")
 
 
@@ -165,25 +226,29 @@ def run(
 ) -> None:
     """Run BS-SLAM on a laser log and write trajectory, map, grid and pictures."""
     from bsslam.io import open_dataset
-    from bsslam.io.results import make_run_dir
+    from bsslam.io.results import interrupt_reason, run_folder
     from bsslam.io.trajectory_file import read_trajectory
     from bsslam.outputs import write_outputs
     from bsslam.pipeline import run_dataset
     from bsslam.viz.rerun_viewer import open_viewer
 
+    run_dir = None
     try:
-        config = _load_config(config_file)
-        if mode is not None:
-            config = config.replace(mode=mode)
-        data = open_dataset(log, format=fmt, strict=strict, scan_topic=scan_topic, odom_topic=odom_topic)
-        ref = read_trajectory(reference) if reference else None
-        run_dir = make_run_dir(out)
-        with progress_bar(f"{log.name}", steps, "scans") as update:
-            result = run_dataset(data, config, steps=steps, progress=update, total=steps,
-                                 relocalize_progress=next_phase(update, f"{log.name}: relocalising"),
-                                 viewer=open_viewer(viewer, run_dir) if viewer else None)
-        summary = write_outputs(result, run_dir, config, reference=ref, title=f"BS-SLAM: {log.name}",
-                                show_control_points=show_control_points)
+        with signals_interrupt():
+            config = _load_config(config_file)
+            if mode is not None:
+                config = config.replace(mode=mode)
+            data = open_dataset(log, format=fmt, strict=strict, scan_topic=scan_topic, odom_topic=odom_topic)
+            ref = read_trajectory(reference) if reference else None
+            with run_folder(out) as run_dir:
+                with progress_bar(f"{log.name}", steps, "scans") as update:
+                    result = run_dataset(data, config, steps=steps, progress=update, total=steps,
+                                         relocalize_progress=next_phase(update, f"{log.name}: relocalising"),
+                                         viewer=open_viewer(viewer, run_dir) if viewer else None)
+                summary = write_outputs(result, run_dir, config, reference=ref, title=f"BS-SLAM: {log.name}",
+                                        show_control_points=show_control_points)
+    except KeyboardInterrupt as exc:
+        interrupted(run_dir, interrupt_reason(exc))
     except BsslamError as exc:
         fail(exc)
     print_summary(summary, f"bsslam run {log}")
@@ -192,6 +257,7 @@ def run(
                       + ", ".join(f"{k}: {v}" for k, v in result.skipped.counts.items()))
         for ex in result.skipped.examples[:5]:
             console.print(f"  {ex}")
+    exit_if_partial(summary, run_dir)
     console.print(f"results in [bold]{run_dir}[/bold]")
 
 
@@ -259,16 +325,16 @@ def bench(
 def _fit_experiment(kind: str, runs: int, seed: int, resolution_deg: float, sigma: float, out: Path) -> None:
     """Shared body of fit-knots and fit-order: run, write CSV + PNG, print the table."""
     from bsslam.experiments import fit
-    from bsslam.io.results import make_run_dir
 
     experiment, writer, column, title = {
         "knots": (fit.fit_knots_experiment, fit.write_fit_knots, "knot spacing (m)", "Fit error vs knot spacing (cubic)"),
         "order": (fit.fit_order_experiment, fit.write_fit_order, "order", "Fit error vs order (knot spacing 2.92 m)"),
     }[kind]
-    run_dir = make_run_dir(out)
-    with progress_bar(f"fit vs {kind}", None, "runs") as update:
-        results = experiment(runs=runs, seed=seed, resolution_deg=resolution_deg, sigma_m=sigma, progress=update)
-    writer(results, run_dir, seed=seed, resolution_deg=resolution_deg, sigma_m=sigma)
+    settings = {"experiment": f"fit-{kind}", "runs": runs, "seed": seed, "resolution_deg": resolution_deg, "sigma_m": sigma}
+    with experiment_folder(out, settings) as run_dir:
+        with progress_bar(f"fit vs {kind}", None, "runs") as update:
+            results = experiment(runs=runs, seed=seed, resolution_deg=resolution_deg, sigma_m=sigma, progress=update)
+        writer(results, run_dir, seed=seed, resolution_deg=resolution_deg, sigma_m=sigma)
     table = Table(column, "MSE (m²)", title=title)
     for value, mse in results:
         table.add_row(f"{value:.3g}", f"{mse:.3e}")
@@ -311,16 +377,14 @@ def consistency(variant: Variant = typer.Option(..., help="Which filter variant.
                 out: Path = typer.Option(Path("results/consistency"), help=OUT_HELP)) -> None:
     """Paper Figs. 10/12: average pose NEES over Monte Carlo runs with the 95% χ² band."""
     from bsslam.experiments.consistency import consistency_experiment, write_consistency
-    from bsslam.io.results import make_run_dir
 
-    try:
-        run_dir = make_run_dir(out)
+    settings = {"experiment": "consistency", "variant": variant.value, "runs": runs, "seed": seed, "world": world,
+                "steps": steps}
+    with experiment_folder(out, settings) as run_dir:
         with progress_bar(f"consistency ({variant.value})", runs, "runs") as update:
             res = consistency_experiment(variant.value, runs=runs, seed=seed, world=world, steps=steps,
                                          workers=workers, progress=update)
         write_consistency(res, run_dir)
-    except BsslamError as exc:
-        fail(exc)
     exit_step = res.first_exit()
     print_summary({
         "variant": res.variant, "world": res.world, "runs": runs, "steps": int(res.mean_nees.size),
@@ -338,12 +402,12 @@ def heading_gain(runs: int = typer.Option(50, help="Monte Carlo runs per initial
                  out: Path = typer.Option(Path("results/heading-gain"), help=OUT_HELP)) -> None:
     """Paper Fig. 11: estimated heading σ of a stationary robot over updates."""
     from bsslam.experiments.heading import DEFAULT_SIGMAS_RAD, heading_gain_experiment, write_heading_gain
-    from bsslam.io.results import make_run_dir
 
-    run_dir = make_run_dir(out)
-    with progress_bar("heading gain", runs * len(DEFAULT_SIGMAS_RAD), "runs") as update:
-        res = heading_gain_experiment(runs=runs, updates=updates, seed=seed, workers=workers, progress=update)
-    write_heading_gain(res, run_dir)
+    settings = {"experiment": "heading-gain", "runs": runs, "updates": updates, "seed": seed}
+    with experiment_folder(out, settings) as run_dir:
+        with progress_bar("heading gain", runs * len(DEFAULT_SIGMAS_RAD), "runs") as update:
+            res = heading_gain_experiment(runs=runs, updates=updates, seed=seed, workers=workers, progress=update)
+        write_heading_gain(res, run_dir)
     table = Table("σ₀ (rad)", "σ_φ after 1 update", f"σ_φ after {updates}", title="Heading information gain")
     for s0, sig in res.items():
         table.add_row(f"{s0:g}", f"{sig[0]:.4g}", f"{sig[-1]:.4g}")

@@ -6,7 +6,6 @@ One function serves ``bsslam simulate`` and ``bsslam run``, so both produce the 
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +16,7 @@ from bsslam.io.config_file import write_config
 from bsslam.io.grid import build_occupancy_grid, write_grid
 from bsslam.io.map_file import write_map_json
 from bsslam.io.pose_covariance_file import write_pose_covariance_csv
+from bsslam.io.results import write_summary
 from bsslam.io.trajectory_file import write_tum
 from bsslam.io.vector_map import write_map_geojson, write_map_svg
 from bsslam.pipeline import RunResult
@@ -99,10 +99,18 @@ def write_outputs(result: RunResult, run_dir: Path, config: SLAMConfig, *, walls
                   reference: Trajectory | None = None, exact_reference: bool = False,
                   title: str = "", show_control_points: bool = False) -> dict:
     """Write every output file into ``run_dir`` and return the summary; the pictures show
-    the splines' control points when ``show_control_points``."""
+    the splines' control points when ``show_control_points``.
+
+    Each file is written atomically; ``summary.json`` comes last, so its presence with
+    ``"status": "complete"`` says every other file is there and whole
+    (:func:`bsslam.io.results.publish_run` relies on it). A result the pipeline marked
+    ``interrupted`` (the scans before a Ctrl-C or SIGTERM) is written the same way with
+    ``"status": "interrupted"``.
+    """
     from bsslam.viz import save_map_figure
 
     run_dir = Path(run_dir)
+    write_config(run_dir / "config.yaml", config)
     write_tum(run_dir / "trajectory.tum", result.trajectory)
     write_pose_covariance_csv(run_dir / "pose_covariance.csv", result.trajectory)
     if result.relocalized is not None:
@@ -114,7 +122,6 @@ def write_outputs(result: RunResult, run_dir: Path, config: SLAMConfig, *, walls
     if result.ground_truth is not None:
         write_tum(run_dir / "ground_truth.tum", result.ground_truth)
     write_map_json(run_dir / "map.json", result.map)
-    write_config(run_dir / "config.yaml", config)
     curves = [m.curve for m in result.map]
     write_run_grid(result, run_dir, config)
     write_vector_maps(run_dir, result.map)
@@ -127,5 +134,7 @@ def write_outputs(result: RunResult, run_dir: Path, config: SLAMConfig, *, walls
         control_points=show_control_points,
     )
     summary = summarize(result, reference, exact_reference)
-    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    return summary
+    if getattr(result, "interrupted", False):
+        return write_summary(run_dir, summary, "interrupted",
+                             f"interrupted after {result.steps} scans; the files hold those scans")
+    return write_summary(run_dir, summary, "complete")

@@ -10,6 +10,8 @@ y ∈ [oy + (H−1−row)·res, oy + (H−row)·res).
 
 from __future__ import annotations
 
+import io
+
 import os
 from dataclasses import dataclass
 from typing import Iterator, Sequence
@@ -245,7 +247,11 @@ def write_grid(pgm_path: PathOrFile, yaml_path: PathOrFile, grid: np.ndarray,
     if grid.ndim != 2 or grid.dtype != np.uint8:
         raise InputError(f"grid must be a 2-D uint8 array, got {grid.dtype} {grid.shape}")
     with open_path_or_file(pgm_path, "wb") as f:
-        Image.fromarray(np.ascontiguousarray(grid)).save(f, format="PPM")   # uint8 (H, W) → "L" → P5
+        # encoded in memory, then written through ``f``: Pillow writes a real file by its
+        # descriptor, around the file object that reports a full disk or a failed write
+        encoded = io.BytesIO()
+        Image.fromarray(np.ascontiguousarray(grid)).save(encoded, format="PPM")   # uint8 (H, W) → "L" → P5
+        f.write(encoded.getvalue())
     description = {
         "image": _image_reference(pgm_path, yaml_path),
         "resolution": float(resolution_m),

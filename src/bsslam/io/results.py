@@ -1,32 +1,154 @@
-"""Result folders: every verb that writes results writes to ``DIR/<timestamp>/`` and points
-``DIR/latest`` at it."""
+"""Result folders: every verb that writes results writes to ``DIR/<timestamp>/``; ``DIR/latest``
+points at the newest run that *completed*.
+
+The lifecycle of a run folder (:func:`run_folder`):
+
+1. :func:`create_run_dir` checks ``DIR`` and ``DIR/latest`` and makes ``DIR/<timestamp>/``
+   before any work, so a bad ``--out`` fails at once;
+2. the verb writes its files (each atomically, :mod:`bsslam.io.atomic_file`) and, last,
+   ``summary.json`` with ``"status": "complete"`` (:func:`write_summary`);
+3. :func:`publish_run` then repoints ``DIR/latest`` — only at a folder whose
+   ``summary.json`` says complete.
+
+A run that fails or is interrupted gets a ``summary.json`` with ``"status": "failed"`` or
+``"interrupted"`` and the ``"reason"``, and ``latest`` stays on the last good run.
+"""
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
+import json
 import os
 from pathlib import Path
+from typing import Any, Iterator
+
+from bsslam.errors import InputError
+from bsslam.io.atomic_file import atomic_write
+
+SUMMARY_FILE = "summary.json"
+LATEST = "latest"
+STATUSES = ("complete", "interrupted", "failed")
 
 
-def make_run_dir(out: str | os.PathLike) -> Path:
-    """Create ``out/<UTC timestamp>/`` (unique even within one second) and repoint
-    ``out/latest`` to it. Returns the new folder."""
+def _out_error(exc: OSError, path: Path, what: str) -> InputError:
+    return InputError(f"cannot {what}: {exc.strerror or exc}", os.fspath(path))
+
+
+def create_run_dir(out: str | os.PathLike) -> Path:
+    """Create ``out/<UTC timestamp>/`` (unique even within one second) and return it.
+    ``out/latest`` is not touched (see :func:`publish_run`).
+
+    Raises:
+        InputError: ``out`` is a file or lies under one, cannot be created or written, or
+            ``out/latest`` exists and is not a symbolic link (a real folder or file that
+            publishing would have to destroy); the message names the path.
+    """
     base = Path(out)
-    base.mkdir(parents=True, exist_ok=True)
+    if base.exists() and not base.is_dir():
+        raise InputError("the results folder is a file, not a folder", os.fspath(base))
+    try:
+        base.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:   # a file on the way (ENOTDIR), permissions, a read-only disk
+        raise _out_error(exc, base, "create the results folder") from None
+    latest = base / LATEST
+    if latest.exists() and not latest.is_symlink():
+        raise InputError(f"'{LATEST}' there is a real {'folder' if latest.is_dir() else 'file'}, not a link "
+                         "to the newest run; move it away", os.fspath(latest))
     stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%d-%H%M%S")
     run = base / stamp
     suffix = 1
     while True:
         try:
             run.mkdir()
-            break
+            return run
         except FileExistsError:
             suffix += 1
             run = base / f"{stamp}-{suffix}"
-    latest = base / "latest"
-    tmp = base / f".latest-{os.getpid()}"
-    if tmp.is_symlink() or tmp.exists():
-        tmp.unlink()
-    tmp.symlink_to(run.name, target_is_directory=True)
-    os.replace(tmp, latest)  # atomic: readers never see a missing `latest`
-    return run
+        except OSError as exc:
+            raise _out_error(exc, run, "create the run folder") from None
+
+
+def write_summary(run_dir: str | os.PathLike, summary: dict[str, Any], status: str,
+                  reason: str | None = None) -> dict[str, Any]:
+    """Write ``run_dir/summary.json`` atomically: ``status`` (and ``reason``) first, then
+    ``summary``. Returns what was written.
+
+    Raises:
+        ValueError: ``status`` is not one of :data:`STATUSES`.
+        InputError: the file cannot be written.
+    """
+    if status not in STATUSES:
+        raise ValueError(f"status must be one of {STATUSES}, got {status!r}")
+    head: dict[str, Any] = {"status": status}
+    if reason is not None:
+        head["reason"] = reason
+    document = {**head, **{k: v for k, v in summary.items() if k not in ("status", "reason")}}
+    with atomic_write(Path(run_dir) / SUMMARY_FILE) as f:
+        f.write(json.dumps(document, indent=2) + "\n")
+    return document
+
+
+def read_status(run_dir: str | os.PathLike) -> str | None:
+    """The ``status`` in ``run_dir/summary.json``, or None without a readable one."""
+    try:
+        document = json.loads((Path(run_dir) / SUMMARY_FILE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return document.get("status") if isinstance(document, dict) else None
+
+
+def publish_run(run_dir: str | os.PathLike) -> bool:
+    """Point ``run_dir/../latest`` at ``run_dir`` if its ``summary.json`` says complete;
+    returns whether it did. The link is swapped atomically (readers never see it missing).
+
+    Raises:
+        InputError: the link cannot be made (e.g. ``latest`` became a real folder).
+    """
+    run = Path(run_dir)
+    if read_status(run) != "complete":
+        return False
+    latest = run.parent / LATEST
+    tmp = run.parent / f".{LATEST}-{os.getpid()}"
+    try:
+        if tmp.is_symlink() or tmp.exists():
+            tmp.unlink()
+        tmp.symlink_to(run.name, target_is_directory=True)
+        os.replace(tmp, latest)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise _out_error(exc, latest, "point the link at the new run") from None
+    return True
+
+
+def mark_unfinished(run_dir: str | os.PathLike, status: str, reason: str) -> None:
+    """Record a failed or interrupted run in its ``summary.json``, unless the run already
+    wrote a summary with a status (a complete or partial result says more). Never raises
+    for I/O: the original error is the one to report."""
+    if read_status(run_dir) is not None:
+        return
+    with contextlib.suppress(OSError, InputError):
+        write_summary(run_dir, {}, status, reason)
+
+
+def interrupt_reason(exc: KeyboardInterrupt) -> str:
+    """"interrupted by SIGTERM" when the signal handler named the signal, else by SIGINT."""
+    return f"interrupted by {exc.args[0]}" if exc.args else "interrupted by SIGINT"
+
+
+@contextlib.contextmanager
+def run_folder(out: str | os.PathLike) -> Iterator[Path]:
+    """The lifecycle of one run folder: create it, yield it, then publish it when the body
+    wrote a complete summary; on a KeyboardInterrupt mark it interrupted, on any other
+    exception failed (with the exception's message as reason), and re-raise."""
+    run = create_run_dir(out)
+    try:
+        yield run
+    except KeyboardInterrupt as exc:
+        mark_unfinished(run, "interrupted", interrupt_reason(exc))
+        raise
+    except BaseException as exc:
+        mark_unfinished(run, "failed", str(exc) or type(exc).__name__)
+        raise
+    publish_run(run)

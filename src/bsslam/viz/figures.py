@@ -10,6 +10,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from bsslam.errors import InputError
+from bsslam.io.atomic_file import atomic_write
 
 SAVE_DPI = 150
 
@@ -21,11 +22,18 @@ def new_figure(width_in: float = 8.0, height_in: float = 6.5) -> Figure:
 
 def save_figure(fig: Figure, paths: Iterable[str | os.PathLike], dpi: int = SAVE_DPI) -> list[Path]:
     """Write ``fig`` to every path, the format taken from each suffix (``.png``, ``.svg``,
-    ``.pdf``); raster parts at ``dpi``. Returns the paths written."""
+    ``.pdf``); raster parts at ``dpi``. Each file is written atomically (a temporary in the
+    same folder, renamed when complete). Returns the paths written.
+
+    Raises:
+        InputError: a path cannot be written (naming it).
+    """
     written = []
     for path in paths:
         path = Path(path)
-        fig.savefig(path, dpi=dpi)
+        # savefig into the open temporary: the format must be named, there is no file name
+        with atomic_write(path, "wb") as f:
+            fig.savefig(f, format=path.suffix.lstrip(".").lower() or None, dpi=dpi)
         written.append(path)
     return written
 

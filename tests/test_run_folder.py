@@ -1,0 +1,257 @@
+"""The life of a run folder: ``latest`` moves only to a complete run; a failed or interrupted
+run says so in its ``summary.json``; faults of the output path are one-line errors; SIGINT
+and SIGTERM end ``bsslam simulate`` with exit 130 and whole files."""
+
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+import bsslam.io.atomic_file as atomic_file
+import bsslam.pipeline as pipeline
+from bsslam.cli import app
+from bsslam.errors import FilterError, InputError
+from bsslam.io.map_file import read_map_json
+from bsslam.io.results import create_run_dir, publish_run, run_folder, write_summary
+from bsslam.io.trajectory_file import read_trajectory
+
+runner = CliRunner()
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+def simulate(out, *extra):
+    return runner.invoke(app, ["simulate", "--world", "mixed", "--steps", "3", "--out", str(out), *map(str, extra)])
+
+
+def good_run(out) -> Path:
+    result = simulate(out)
+    assert result.exit_code == 0, result.output
+    return (out / "latest").resolve()
+
+
+def runs(out):
+    return sorted(p for p in out.iterdir() if p.is_dir() and not p.is_symlink())
+
+
+def summary_of(run):
+    return json.loads((run / "summary.json").read_text())
+
+
+def one_line_error(result, code=2):
+    assert result.exit_code == code, result.output
+    assert isinstance(result.exception, SystemExit)          # no traceback
+    assert "Traceback" not in result.output
+    # the progress bar may have drawn before the error; the message itself is one line
+    lines = [line for line in result.output.splitlines() if line.startswith(("error:", "interrupted"))]
+    assert len(lines) == 1 and lines[0] == result.output.rstrip().splitlines()[-1], result.output
+    return lines[0]
+
+
+def assert_whole(run: Path):
+    """Every file in the folder is complete: no temporaries, JSON parses, TUM rows have
+    eight numbers, the map reads."""
+    for path in run.iterdir():
+        assert not path.name.startswith("."), path
+        if path.suffix == ".json":
+            json.loads(path.read_text())
+        if path.suffix == ".tum":
+            rows = [line.split() for line in path.read_text().splitlines() if not line.startswith("#")]
+            assert all(len(r) == 8 for r in rows) and read_trajectory(path) is not None
+        if path.name == "map.json":
+            read_map_json(path)
+
+
+# ---------------------------------------------------------------------------- library
+def test_latest_moves_only_to_a_complete_run(tmp_path):
+    first = create_run_dir(tmp_path)
+    assert not (tmp_path / "latest").exists()
+    write_summary(first, {}, "complete")
+    assert publish_run(first)
+    second = create_run_dir(tmp_path)
+    write_summary(second, {}, "interrupted", "by SIGINT")
+    assert not publish_run(second)
+    assert (tmp_path / "latest").resolve() == first
+    third = create_run_dir(tmp_path)
+    assert not publish_run(third)                 # no summary at all
+    assert (tmp_path / "latest").resolve() == first
+
+
+def test_run_folder_marks_failures_and_interruptions(tmp_path):
+    with pytest.raises(FilterError):
+        with run_folder(tmp_path) as failed:
+            raise FilterError("covariance not positive definite")
+    assert summary_of(failed) == {"status": "failed", "reason": "covariance not positive definite"}
+    with pytest.raises(KeyboardInterrupt):
+        with run_folder(tmp_path) as stopped:
+            raise KeyboardInterrupt("SIGTERM")
+    assert summary_of(stopped) == {"status": "interrupted", "reason": "interrupted by SIGTERM"}
+    assert not (tmp_path / "latest").exists()
+    with run_folder(tmp_path) as good:
+        write_summary(good, {"scans": 1}, "complete")
+    assert (tmp_path / "latest").resolve() == good
+
+
+def test_a_folder_that_cannot_be_created_is_an_input_error(tmp_path, monkeypatch):
+    def refuse(self, *args, **kwargs):
+        raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(self))
+
+    monkeypatch.setattr(Path, "mkdir", refuse)
+    with pytest.raises(InputError, match="Permission denied") as info:
+        create_run_dir(tmp_path / "out")
+    assert "out" in str(info.value)
+
+
+@pytest.mark.skipif(os.name != "posix" or os.geteuid() == 0, reason="root writes into read-only folders")
+def test_a_read_only_results_folder_is_a_one_line_error(tmp_path):
+    out = tmp_path / "ro"
+    out.mkdir()
+    out.chmod(0o500)
+    try:
+        line = one_line_error(simulate(out))
+    finally:
+        out.chmod(0o700)
+    assert str(out) in line
+
+
+# ---------------------------------------------------------------------------- CLI faults
+def test_out_is_a_file(tmp_path):
+    out = tmp_path / "file"
+    out.write_text("x")
+    line = one_line_error(simulate(out))
+    assert str(out) in line and "file" in line
+
+
+def test_out_under_a_file(tmp_path):
+    (tmp_path / "file").write_text("x")
+    line = one_line_error(simulate(tmp_path / "file" / "results"))
+    assert "file" in line
+
+
+def test_latest_is_a_real_folder(tmp_path):
+    (tmp_path / "latest").mkdir()
+    (tmp_path / "latest" / "keep.txt").write_text("mine")
+    line = one_line_error(simulate(tmp_path))
+    assert str(tmp_path / "latest") in line
+    assert (tmp_path / "latest" / "keep.txt").read_text() == "mine"
+    assert runs(tmp_path) == [tmp_path / "latest"]      # no run folder was made
+
+
+def test_a_full_disk_mid_run_is_a_one_line_error_and_leaves_no_cut_file(tmp_path, monkeypatch):
+    previous = good_run(tmp_path)
+    real_fdopen = os.fdopen
+
+    class FullAfterMapStarts:
+        def __init__(self, handle):
+            self._handle = handle
+
+        def write(self, data):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+        def __getattr__(self, name):
+            return getattr(self._handle, name)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self._handle.close()
+
+    def fdopen(fd, mode, **kwargs):
+        handle = real_fdopen(fd, mode, **kwargs)
+        name = os.readlink(f"/proc/self/fd/{fd}") if os.path.exists("/proc/self/fd") else ""
+        return FullAfterMapStarts(handle) if ".map.json." in name else handle
+
+    monkeypatch.setattr(atomic_file.os, "fdopen", fdopen)
+    line = one_line_error(simulate(tmp_path))
+    assert "No space left" in line and "map.json" in line
+    failed = [r for r in runs(tmp_path) if r != previous]
+    assert len(failed) == 1
+    assert not (failed[0] / "map.json").exists()
+    assert summary_of(failed[0])["status"] == "failed" and "No space left" in summary_of(failed[0])["reason"]
+    assert_whole(failed[0])
+    assert (tmp_path / "latest").resolve() == previous
+
+
+def test_a_filter_error_marks_the_run_failed(tmp_path, monkeypatch):
+    previous = good_run(tmp_path)
+
+    def broken(*args, **kwargs):
+        raise FilterError("the covariance is not positive definite")
+
+    monkeypatch.setattr(pipeline, "run_dataset", broken)
+    line = one_line_error(simulate(tmp_path))
+    assert "positive definite" in line
+    failed = [r for r in runs(tmp_path) if r != previous][0]
+    assert summary_of(failed) == {"status": "failed", "reason": "the covariance is not positive definite"}
+    assert (tmp_path / "latest").resolve() == previous
+
+
+def test_an_interruption_without_a_result_marks_the_folder(tmp_path, monkeypatch):
+    previous = good_run(tmp_path)
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pipeline, "run_dataset", interrupted)
+    line = one_line_error(simulate(tmp_path), code=130)
+    assert "interrupted" in line
+    stopped = [r for r in runs(tmp_path) if r != previous][0]
+    assert summary_of(stopped) == {"status": "interrupted", "reason": "interrupted by SIGINT"}
+    assert (tmp_path / "latest").resolve() == previous
+
+
+def test_a_partial_result_is_written_whole_and_marked_interrupted(tmp_path, monkeypatch):
+    """The pipeline's contract: a KeyboardInterrupt inside its loop returns the scans so far
+    with ``interrupted = True``; the CLI writes them, says interrupted, exits 130."""
+    previous = good_run(tmp_path)
+    real = pipeline.run_dataset
+
+    def partial(*args, **kwargs):
+        result = real(*args, **kwargs)
+        result.interrupted = True
+        return result
+
+    monkeypatch.setattr(pipeline, "run_dataset", partial)
+    result = simulate(tmp_path)
+    assert result.exit_code == 130, result.output
+    stopped = [r for r in runs(tmp_path) if r != previous][0]
+    summary = summary_of(stopped)
+    assert summary["status"] == "interrupted" and summary["scans"] == 3
+    assert len(read_trajectory(stopped / "trajectory.tum")) == 3
+    assert_whole(stopped)
+    assert (tmp_path / "latest").resolve() == previous
+
+
+# ---------------------------------------------------------------------------- real signals
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_mid_run_ends_simulate_cleanly(tmp_path, sig):
+    previous = good_run(tmp_path)
+    env = {**os.environ, "PYTHONPATH": str(SRC), "MPLBACKEND": "Agg"}
+    # 2000 scans: about 5 s to simulate, tens of seconds to run, so the signal lands mid-run
+    proc = subprocess.Popen([sys.executable, "-m", "bsslam.cli", "simulate", "--world", "mixed",
+                             "--steps", "2000", "--out", str(tmp_path)],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 600     # bounded: the first run may compile the kernels
+        while len(runs(tmp_path)) < 2 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert len(runs(tmp_path)) == 2, "the run folder never appeared"
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "interrupted" in err
+    stopped = [r for r in runs(tmp_path) if r != previous][0]
+    assert summary_of(stopped)["status"] == "interrupted"
+    assert_whole(stopped)
+    assert (tmp_path / "latest").resolve() == previous
