@@ -19,6 +19,7 @@ so the loop never branches on "visualise?".
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Protocol
@@ -210,7 +211,9 @@ class _FrontendMotion:
         return self.odometry.pose.copy()
 
 
-_blas = None
+@functools.cache
+def _blas_controller() -> ThreadpoolController:
+    return ThreadpoolController()     # scanning the loaded libraries takes ~10 ms: once per process
 
 
 def _one_blas_thread():
@@ -218,10 +221,7 @@ def _one_blas_thread():
     (hundreds of rows): BLAS threads only add overhead, under load they make a 170×170
     Cholesky 100× slower, and the thread count must not change the numbers between two
     runs of the same data."""
-    global _blas
-    if _blas is None:   # scanning the loaded libraries takes ~10 ms: once per process
-        _blas = ThreadpoolController()
-    return _blas.limit(limits=1, user_api="blas")
+    return _blas_controller().limit(limits=1, user_api="blas")
 
 
 class Mapper:
@@ -306,7 +306,7 @@ class Mapper:
             record = self._step(frame)
         self._records.append(record)      # the scan is recorded whole, or not at all
         self._odometry = odometry
-        estimate = PoseEstimate(record.stamp, record.pose, record.covariance, record.replay.scan is not None)
+        estimate = PoseEstimate(record.stamp, record.pose.copy(), record.covariance.copy(), record.replay.scan is not None)
         self.viewer.update(estimate, _scan_points(scan, record.pose, offset, 1), self)
         return estimate
 
