@@ -60,7 +60,10 @@ def save_map_figure(
         if est_covariances is not None:
             plot_pose_ellipses(ax, est_poses, est_covariances)
     _frame_map(ax, curves, walls, true_poses, est_poses)
-    ax.set_aspect("equal", adjustable="datalim")
+    # Both limits are fixed by the frame, so the equal aspect must shrink the axes box:
+    # with adjustable="datalim" matplotlib would override one of the limits (and log a
+    # warning on every save).
+    ax.set_aspect("equal", adjustable="box")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     if title:
