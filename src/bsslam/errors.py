@@ -41,3 +41,7 @@ class InputError(BsslamError):
 
 class FilterError(BsslamError, RuntimeError):
     """The filter reached an invalid numerical state (e.g. a covariance not positive definite)."""
+
+
+class MissingDependencyError(BsslamError, ImportError):
+    """An optional dependency is not installed; the message names the extra to install."""
