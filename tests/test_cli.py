@@ -254,7 +254,8 @@ def test_run_on_a_folder_runs_each_log_in_it(tmp_path):
 def test_a_bag_without_the_ros_extra_names_it(tmp_path, monkeypatch):
     import sys
 
-    monkeypatch.setitem(sys.modules, "rosbags", None)  # as if not installed
+    for name in [m for m in sys.modules if m == "rosbags" or m.startswith("rosbags.")] or ["rosbags"]:
+        monkeypatch.setitem(sys.modules, name, None)  # as if not installed
     monkeypatch.delitem(sys.modules, "bsslam.io.rosbag", raising=False)
     (tmp_path / "x.bag").write_bytes(b"")
     result = runner.invoke(app, ["run", str(tmp_path / "x.bag"), "--out", str(tmp_path)])

@@ -12,11 +12,11 @@ from pathlib import Path
 from typing import Iterator, List, Optional
 
 import typer
-from typer.core import TyperGroup
 from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
+from typer.core import TyperGroup
 
 from bsslam import __version__
 from bsslam.errors import BsslamError, ConfigError

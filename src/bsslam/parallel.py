@@ -79,11 +79,11 @@ def run_all(
         with distributed.Client(scheduler) as client:
             return _run_on(client, fn, items, progress)
     n_workers = min(workers or os.cpu_count() or 1, len(items))
-    # Processes, one thread each: the filter holds the GIL (Python and numba without
-    # nogil), so threads would not run in parallel. No dashboard: it needs a free port,
-    # and several runs on one machine would warn about taking 8787 in turn.
+    # Processes, one thread each: the filter's step is Python holding the GIL, so threads
+    # would not run in parallel. The scheduler's HTTP server on any free port: the default
+    # 8787 is taken by a second cluster on the machine, with a warning.
     with distributed.LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
-                                  dashboard_address=None) as cluster, distributed.Client(cluster) as client:
+                                  dashboard_address=":0") as cluster, distributed.Client(cluster) as client:
         return _run_on(client, fn, items, progress)
 
 
