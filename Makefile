@@ -3,8 +3,9 @@ install:
 	pip install -e ".[test]"
 test:
 	pytest -q -n 2
+# bsslam bench runs the logs of $BSSLAM_DATA (e.g. BSSLAM_DATA=../shared/data make bench)
 bench:
-	bsslam bench
+	@if [ -n "$$BSSLAM_DATA" ]; then bsslam bench; else echo "bsslam bench skipped: set BSSLAM_DATA to a folder of logs"; fi
 	python benchmarks/bench_spline.py
 	python benchmarks/bench_segment.py
 	python benchmarks/bench_filter.py

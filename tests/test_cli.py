@@ -2,6 +2,7 @@
 
 import csv
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -9,6 +10,7 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
+import bsslam
 from bsslam.cli import app
 from bsslam.io.map_file import read_map_json
 from bsslam.io.pose_covariance_file import read_pose_covariance_csv
@@ -53,9 +55,11 @@ def check_run_folder(run: Path, scans: int):
     return summary
 
 
-def test_simulate_writes_every_output(tmp_path):
+def test_simulate_writes_every_output(tmp_path, caplog):
     out = tmp_path / "sim"
-    invoke("simulate", "--world", "mixed", "--steps", 30, "--seed", 2, "--out", out)
+    with caplog.at_level(logging.WARNING):
+        invoke("simulate", "--world", "mixed", "--steps", 30, "--seed", 2, "--out", out)
+    assert not caplog.records, [r.getMessage() for r in caplog.records]  # a clean run warns of nothing
     run = (out / "latest").resolve()
     assert run.parent == out and run.name != "latest"
     summary = check_run_folder(run, 30)
@@ -143,9 +147,128 @@ def test_evaluate_json_on_a_shifted_copy(tmp_path):
     est[:, 1] += 0.1  # a constant offset is removed by the rigid alignment
     np.savetxt(tmp_path / "ref.txt", ref)
     np.savetxt(tmp_path / "est.txt", est)
-    out = invoke("evaluate", tmp_path / "est.txt", tmp_path / "ref.txt", "--json").output
+    out = invoke("evaluate", tmp_path / "est.txt", tmp_path / "ref.txt", "--json", "-").output
     metrics = json.loads(out)
     assert metrics["ate_m"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_evaluate_saves_json_and_plot_and_keeps_printing(tmp_path):
+    t = np.arange(60.0)
+    ref = np.column_stack([t, np.cos(t / 8), np.sin(t / 8), t / 8])
+    est = ref.copy()
+    est[:, 2] += 0.002 * t  # a growing error the alignment cannot remove
+    np.savetxt(tmp_path / "ref.txt", ref)
+    np.savetxt(tmp_path / "est.txt", est)
+    out = invoke("evaluate", tmp_path / "est.txt", tmp_path / "ref.txt", "--json", tmp_path / "m.json",
+                 "--plot", tmp_path / "e.png").output
+    saved = json.loads((tmp_path / "m.json").read_text())
+    assert saved["matched"] == 60 and saved["ate_m"] > 0.01
+    assert "ate_m" in out and f"{saved['ate_m']:.4g}"[:5] in out  # the table is still printed
+    assert (tmp_path / "e.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_version_and_verbosity_flags_before_or_after_the_verb():
+    assert invoke("--version").output.strip() == f"bsslam {bsslam.__version__}"
+    for args in (["-q", "config"], ["config", "-q"], ["config", "--verbose"], ["-v", "config"]):
+        assert "spline:" in invoke(*args).output
+    result = runner.invoke(app, ["config", "-v", "-q"])
+    assert result.exit_code != 0 and "not both" in result.output
+
+
+def test_config_prints_the_defaults_as_yaml_that_loads_back_equal(tmp_path):
+    from bsslam.config import SLAMConfig
+    from bsslam.io.config_file import load_config
+
+    (tmp_path / "c.yaml").write_text(invoke("config").stdout)
+    assert load_config(tmp_path / "c.yaml") == SLAMConfig()
+
+
+@pytest.mark.parametrize("middle", ["mid.tum", "mid.txt"])
+def test_convert_round_trips_both_formats(tmp_path, middle):
+    t = np.linspace(10.0, 20.0, 11)
+    poses = np.column_stack([t, np.sin(t), np.cos(t), np.linspace(-3.1, 3.1, 11)])
+    np.savetxt(tmp_path / "in.txt", poses, fmt="%.17g")
+    invoke("convert", tmp_path / "in.txt", tmp_path / middle, "--to", "tum")
+    assert len((tmp_path / middle).read_text().splitlines()[1].split()) == 8
+    invoke("convert", tmp_path / middle, tmp_path / "back.txt")
+    back = read_trajectory(tmp_path / "back.txt")
+    assert len((tmp_path / "back.txt").read_text().splitlines()[1].split()) == 4
+    np.testing.assert_array_equal(back.stamps, t)
+    np.testing.assert_array_equal(back.poses[:, :2], poses[:, 1:3])
+    np.testing.assert_allclose(back.poses[:, 2], poses[:, 3], atol=1e-15)
+
+
+def test_convert_of_a_bad_file_names_its_line(tmp_path):
+    (tmp_path / "bad.txt").write_text("1 2 3 4\n1 2 x 4\n")
+    result = runner.invoke(app, ["convert", str(tmp_path / "bad.txt"), str(tmp_path / "o.tum")])
+    assert result.exit_code == 2 and "bad.txt:2" in result.output
+
+
+def write_carmen_log(path, world, seed, steps):
+    """A CARMEN log (FLASER lines) and its ``.gt.txt`` reference from a simulated run: the
+    simulator's 181 beams over 180° are CARMEN's beam layout; no return → 81.9 m."""
+    from bsslam.io.carmen_messages import carmen_beam_angles
+    from bsslam.sim import SimConfig, get_world, simulate
+
+    data = simulate(get_world(world), SimConfig(), seed=seed, steps=steps)
+    with open(path, "w") as fh:
+        for frame in data:
+            np.testing.assert_array_equal(frame.scan.angles, carmen_beam_angles(181))
+            ranges = np.where(frame.scan.ranges < frame.scan.max_range, frame.scan.ranges, 81.9)
+            pose = " ".join(map(repr, frame.odometry.tolist()))
+            fh.write(f"FLASER 181 {' '.join(map(repr, ranges.tolist()))} {pose} {pose} {frame.stamp!r} sim {frame.stamp!r}\n")
+    gt = data.ground_truth
+    np.savetxt(path.with_suffix(".gt.txt"), np.column_stack([gt.stamps, gt.poses]), fmt="%.17g")
+    return path
+
+
+def test_bench_takes_logs_folders_and_patterns_and_runs_them_on_two_workers(tmp_path, monkeypatch):
+    pytest.importorskip("distributed")
+    (tmp_path / "a").mkdir()
+    write_carmen_log(tmp_path / "a" / "one.clf", "mixed", 1, 12)
+    write_carmen_log(tmp_path / "two.clf", "rounded-room", 2, 12)
+    (tmp_path / "a" / "notes.log").write_text("not a laser log: .log is not searched in folders\n")
+    monkeypatch.delenv("BSSLAM_DATA", raising=False)
+    out = invoke("bench", tmp_path / "a", str(tmp_path / "t*.clf"), "--workers", 2, "-q").output
+    rows = {line.split("│")[1].strip(): line for line in out.splitlines() if ".clf" in line}
+    assert set(rows) == {"one.clf", "two.clf"}
+    assert all(line.split("│")[2].strip() == "12" for line in rows.values())  # scans
+    # without LOGS the folder comes from --data or BSSLAM_DATA, never from a default
+    result = runner.invoke(app, ["bench"])
+    assert result.exit_code == 2 and "BSSLAM_DATA" in result.output
+    monkeypatch.setenv("BSSLAM_DATA", str(tmp_path / "a"))
+    out = invoke("bench", "--workers", 1, "--steps", 5).output
+    assert "one.clf" in out and "two.clf" not in out
+
+
+def test_run_on_a_folder_runs_each_log_in_it(tmp_path):
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    write_carmen_log(logs / "one.clf", "mixed", 1, 6)
+    write_carmen_log(logs / "two.clf", "mixed", 2, 6)
+    invoke("run", logs, "--out", tmp_path / "out", "-q")
+    for name in ("one", "two"):
+        assert len(read_trajectory((tmp_path / "out" / name / "latest" / "trajectory.tum").resolve())) == 6
+
+
+def test_a_bag_without_the_ros_extra_names_it(tmp_path, monkeypatch):
+    import sys
+
+    for name in [m for m in sys.modules if m == "rosbags" or m.startswith("rosbags.")] or ["rosbags"]:
+        monkeypatch.setitem(sys.modules, name, None)  # as if not installed
+    monkeypatch.delitem(sys.modules, "bsslam.io.rosbag", raising=False)
+    (tmp_path / "x.bag").write_bytes(b"")
+    result = runner.invoke(app, ["run", str(tmp_path / "x.bag"), "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "bsslam[ros]" in result.output
+
+
+def test_consistency_on_a_local_cluster_writes_the_serial_numbers(tmp_path):
+    pytest.importorskip("distributed")
+    for workers in (1, 2):
+        invoke("experiment", "consistency", "--variant", "no-extension", "--runs", 3, "--steps", 6,
+               "--workers", workers, "--out", tmp_path / str(workers))
+    assert ((tmp_path / "1" / "latest" / "nees.csv").read_text()
+            == (tmp_path / "2" / "latest" / "nees.csv").read_text())
 
 
 def test_a_machines_first_run_says_it_compiles_first(tmp_path, monkeypatch):

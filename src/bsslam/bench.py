@@ -1,4 +1,5 @@
-"""Accuracy and speed on real logs: every CARMEN log in a data folder, one configuration.
+"""Accuracy and speed on real logs: several logs, one configuration, the logs run in
+parallel through :func:`bsslam.parallel.run_all`.
 
 A benchmark, not a test: it prints figures (``bsslam bench``); nothing asserts on them.
 """
@@ -8,12 +9,16 @@ from __future__ import annotations
 import resource
 import time
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
+from typing import Sequence
 
 from bsslam.config import SLAMConfig
+from bsslam.errors import BsslamError
 from bsslam.eval import ate, relations_error
 from bsslam.io import open_dataset
 from bsslam.io.trajectory_file import read_trajectory
+from bsslam.parallel import run_all
 from bsslam.pipeline import run_dataset
 
 #: The Intel relations file counts time from the Unix epoch; our Intel logs from the start.
@@ -35,12 +40,17 @@ class BenchRow:
     odometry_ate_m: float
     frontend_ate_m: float
     relations: str
+    #: peak resident memory of the process that ran the log, by its end (MB); the processes
+    #: of a cluster run several logs each, so this is the most any of them had needed
     peak_rss_mb: float
 
 
-def find_logs(data_dir: Path) -> list[Path]:
-    """The ``*.clf`` logs below ``data_dir``, sorted."""
-    return sorted(Path(data_dir).glob("**/*.clf"))
+@dataclass(frozen=True)
+class BenchFailure:
+    """A log that could not be run (unreadable, or rejected by the filter)."""
+
+    log: str
+    message: str
 
 
 def bench_log(log: Path, config: SLAMConfig, steps: int | None = None, progress=None,
@@ -71,3 +81,20 @@ def bench_log(log: Path, config: SLAMConfig, steps: int | None = None, progress=
     return BenchRow(log.name, result.steps, wall, 1000.0 * result.wall_time_s / max(result.steps, 1),
                     len(result.map), int(result.state_sizes.max()) if result.steps else 3, ate_m, online_m, odo_m, fe_m, rel,
                     resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
+
+
+def _bench_or_failure(log: Path, config: SLAMConfig, steps: int | None) -> BenchRow | BenchFailure:
+    try:
+        return bench_log(log, config, steps=steps)
+    except BsslamError as exc:  # one bad log must not cost the others' figures
+        return BenchFailure(log.name, str(exc))
+
+
+def bench_logs(logs: Sequence[Path], config: SLAMConfig, steps: int | None = None, *,
+               workers: int | None = None, scheduler: str | None = None,
+               progress=None) -> list[BenchRow | BenchFailure]:
+    """:func:`bench_log` for every log, the logs spread over ``workers``/``scheduler`` as
+    :func:`bsslam.parallel.run_all` does (a local cluster over every core by default);
+    ``progress(done_logs, total)``. Results in the order of ``logs``."""
+    fn = partial(_bench_or_failure, config=config, steps=steps)
+    return run_all(fn, [Path(log) for log in logs], workers=workers, scheduler=scheduler, progress=progress)

@@ -5,21 +5,61 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import os
 import signal
+import sys
 import threading
 from enum import Enum
 from pathlib import Path
-from typing import Iterator, Optional
+from typing import Iterator, List, Optional
 
 import typer
 from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
+from typer.core import TyperGroup
 
-from bsslam.errors import BsslamError
+from bsslam import __version__
+from bsslam.errors import BsslamError, ConfigError
 
-app = typer.Typer(add_completion=False, no_args_is_help=True,
+# Set by the app's callback for this invocation: -q hides the progress bars too.
+_quiet = False
+_LATE_FLAGS = "bsslam.verbosity_after_verb"  # key in click's context meta
+
+
+def _set_verbosity(verbose: bool, quiet: bool) -> None:
+    """-v: log INFO and up; -q: only errors, and no progress bars; else warnings and up."""
+    global _quiet
+    if verbose and quiet:
+        raise typer.BadParameter("give -v or -q, not both")
+    logging.basicConfig(format="%(levelname)s %(name)s: %(message)s")  # once: later calls do nothing
+    level = logging.INFO if verbose else logging.ERROR if quiet else logging.WARNING
+    logging.getLogger().setLevel(level)
+    # Dask's scheduler and workers log their start and stop at INFO (some 30 lines a run),
+    # not the details -v asks for. Dask sets its loggers' levels from its configuration
+    # when it is imported (later, by the runner; the environment reaches the workers too).
+    os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
+    logging.getLogger("distributed").setLevel(max(level, logging.WARNING))
+    _quiet = quiet
+
+
+class _App(TyperGroup):
+    """The ``bsslam`` command: -v/-q are taken after the verb too (``bsslam run x.clf -q``).
+
+    They are picked out of the verb's arguments (up to a ``--``) here, before the app's
+    callback runs, which then applies them with its own."""
+
+    _FLAGS = {"-v": "verbose", "--verbose": "verbose", "-q": "quiet", "--quiet": "quiet"}
+
+    def resolve_command(self, ctx, args):
+        name, command, rest = super().resolve_command(ctx, args)
+        end = rest.index("--") if "--" in rest else len(rest)
+        ctx.meta[_LATE_FLAGS] = {self._FLAGS[a] for a in rest[:end] if a in self._FLAGS}
+        return name, command, [a for a in rest[:end] if a not in self._FLAGS] + rest[end:]
+
+
+app = typer.Typer(cls=_App, add_completion=False, no_args_is_help=True,
                   help="BS-SLAM: EKF SLAM with B-spline map features for 2D laser range finders.")
 experiment_app = typer.Typer(no_args_is_help=True, help="Reproduce the paper's experiments.")
 app.add_typer(experiment_app, name="experiment")
@@ -28,6 +68,9 @@ console = Console(stderr=True)
 OUT_HELP = ("Results folder: files go to DIR/<timestamp>/; DIR/latest points at the newest "
             "complete run.")
 EXIT_INTERRUPTED = 130   # 128 + SIGINT, what shells report for a Ctrl-C
+WORKERS_HELP = ("Runs in parallel on a local Dask cluster of N processes (default: one per core); "
+                "1 = one after the other in this process.")
+SCHEDULER_HELP = "Address of a running Dask scheduler (e.g. tcp://host:8786): the runs go to its workers."
 
 
 _compile_hint_shown = False
@@ -38,7 +81,7 @@ def progress_bar(description: str, total: int | None, unit: str = "") -> Iterato
     """A rich progress bar; yields ``update(done, total)`` for library callbacks. Before the
     first bar of a machine's first run, says why it will wait at the start."""
     global _compile_hint_shown
-    if not _compile_hint_shown:
+    if not _compile_hint_shown and not _quiet:
         _compile_hint_shown = True
         from bsslam.compiled import needs_compiling
         from bsslam.slam.range_kernels import linearize_beams   # one of the filter's kernels
@@ -48,7 +91,7 @@ def progress_bar(description: str, total: int | None, unit: str = "") -> Iterato
                           "(about a minute; cached for the next runs)[/dim]")
     columns = [TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                TextColumn("{task.fields[rate]}"), TimeElapsedColumn(), TimeRemainingColumn()]
-    with Progress(*columns, console=console) as bar:
+    with Progress(*columns, console=console, disable=_quiet) as bar:
         task = bar.add_task(description, total=total, rate="")
 
         def update(done: int, total_: int | None = None) -> None:
@@ -152,9 +195,21 @@ def _load_config(config_file: Optional[Path]):
     return load_config(config_file) if config_file else SLAMConfig()
 
 
+def _print_version(value: bool) -> None:
+    if value:
+        typer.echo(f"bsslam {__version__}")
+        raise typer.Exit()
+
+
 @app.callback()
-def main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log details to stderr.")) -> None:
-    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+def main(ctx: typer.Context,
+         verbose: bool = typer.Option(False, "--verbose", "-v", help="Log details to stderr (before or after the verb)."),
+         quiet: bool = typer.Option(False, "--quiet", "-q", help="Only errors: no progress bars, no notices "
+                                    "(before or after the verb)."),
+         version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True,
+                                      help="Print the version and exit.")) -> None:
+    late = ctx.meta.get(_LATE_FLAGS, set())
+    _set_verbosity(verbose or "verbose" in late, quiet or "quiet" in late)
 
 
 # --------------------------------------------------------------------------------------
@@ -208,7 +263,8 @@ def simulate(
 
 @app.command()
 def run(
-    log: Path = typer.Argument(..., help="CARMEN log (.clf/.log), ROS 1 bag (.bag) or ROS 2 bag folder."),
+    log: Path = typer.Argument(..., help="CARMEN log (.clf/.log), ROS 1 bag (.bag), ROS 2 bag folder, or a "
+                               "folder of logs: each is run, its results under OUT/<log name>/."),
     config_file: Optional[Path] = typer.Option(None, "--config", help="YAML configuration of the filter."),
     out: Path = typer.Option(Path("results/run"), help=OUT_HELP),
     mode: Optional[str] = typer.Option(None, help="slam (default) or localization."),
@@ -225,6 +281,17 @@ def run(
                                              help="Draw the splines' control points in map.png/map.svg."),
 ) -> None:
     """Run BS-SLAM on a laser log and write trajectory, map, grid and pictures."""
+    options = dict(locals())  # every option of this call, for the runs of a folder's logs
+    from bsslam.io.log_paths import find_logs, is_ros2_bag
+
+    if log.is_dir() and not is_ros2_bag(log):
+        try:
+            logs = find_logs([log])
+        except BsslamError as exc:
+            fail(exc)
+        for one in logs:
+            run(**{**options, "log": one, "out": out / one.stem})
+        return
     from bsslam.io import open_dataset
     from bsslam.io.results import interrupt_reason, run_folder
     from bsslam.io.trajectory_file import read_trajectory
@@ -269,17 +336,24 @@ def evaluate(
     offset: float = typer.Option(0.0, help="Seconds to subtract from the relations' timestamps."),
     max_dt: float = typer.Option(0.05, help="Largest timestamp difference when matching poses (s)."),
     exact: bool = typer.Option(False, help="The reference is exact ground truth: also report NEES."),
-    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table."),
+    json_file: Optional[Path] = typer.Option(None, "--json", help="Also save the metrics as JSON to this file "
+                                             "('-': print JSON instead of the table)."),
+    plot: Optional[Path] = typer.Option(None, help="Also draw the aligned trajectories and the position error "
+                                        "over time to this picture (.png, .svg or .pdf)."),
 ) -> None:
     """ATE, RPE, the relations metric and NEES of a trajectory against a reference."""
-    from bsslam.eval import evaluate_files
+    from bsslam.eval.evaluate_files import evaluate_files, write_evaluation_plot, write_metrics_json
 
     try:
         metrics = evaluate_files(estimate, reference, relations_path=relations, offset=offset,
                                  max_dt=max_dt, exact_reference=exact)
+        if json_file is not None and json_file != Path("-"):
+            write_metrics_json(json_file, metrics)
+        if plot is not None:
+            write_evaluation_plot(estimate, reference, plot, max_dt=max_dt)
     except BsslamError as exc:
         fail(exc)
-    if as_json:
+    if json_file == Path("-"):
         typer.echo(json.dumps(metrics, indent=2))
     else:
         print_summary(metrics, f"{estimate} vs {reference}")
@@ -287,38 +361,83 @@ def evaluate(
 
 @app.command()
 def bench(
-    data: Path = typer.Option(Path("../shared/data"), help="Folder searched for *.clf logs (with *.gt.txt references)."),
+    logs: Optional[List[str]] = typer.Argument(None, help="Logs: files, folders (searched for *.clf, *.carmen, "
+                                               "*.bag and ROS 2 bags) and patterns such as 'data/*/*.clf'. "
+                                               "Default: the logs in --data."),
+    data: Optional[Path] = typer.Option(None, envvar="BSSLAM_DATA", help="Folder of logs (with *.gt.txt "
+                                        "references) when no LOGS are given; default: $BSSLAM_DATA."),
     config_file: Optional[Path] = typer.Option(None, "--config", help="YAML configuration (the same for every log)."),
     steps: Optional[int] = typer.Option(None, help="Only the first N scans of each log."),
     mode: Optional[str] = typer.Option(None, help="slam or localization (default: the configuration's)."),
+    workers: Optional[int] = typer.Option(None, help=WORKERS_HELP),
+    scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
 ) -> None:
-    """Accuracy and speed on every log of a data folder, one configuration for all."""
-    from bsslam.bench import bench_log, find_logs
+    """Accuracy and speed on several logs, one configuration for all, the logs in parallel."""
+    from bsslam.bench import BenchFailure, bench_logs
+    from bsslam.io.log_paths import find_logs
 
-    logs = find_logs(data)
-    if not logs:
-        fail(BsslamError(f"no *.clf logs under {data}"))
     try:
+        if not logs and data is None:
+            raise ConfigError("name the logs (bsslam bench LOGS...) or their folder (--data DIR, or the "
+                              "BSSLAM_DATA environment variable)")
+        found = find_logs(logs or [data])
         config = _load_config(config_file)
         if mode is not None:
             config = config.replace(mode=mode)
+        with progress_bar(f"bench: {len(found)} log(s)", len(found)) as update:
+            rows = bench_logs(found, config, steps=steps, workers=workers, scheduler=scheduler, progress=update)
     except BsslamError as exc:
         fail(exc)
     table = Table("log", "scans", "wall s", "ms/scan", "splines", "max state", "ATE m", "online ATE m",
                   "odometry ATE m", "front end ATE m", "relations (Intel)", title=f"bsslam bench ({config.mode})")
-    for log in logs:
-        try:
-            with progress_bar(log.name, steps, "scans") as update:
-                row = bench_log(log, config, steps=steps, progress=update,
-                                relocalize_progress=next_phase(update, f"{log.name}: relocalising"))
-        except BsslamError as exc:
-            console.print(f"[red]{log}: {exc}[/red]")
+    for row in rows:
+        if isinstance(row, BenchFailure):
+            console.print(f"[red]{escape(row.log)}: {escape(row.message)}[/red]", soft_wrap=True)
             continue
         table.add_row(row.log, str(row.scans), f"{row.wall_s:.1f}", f"{row.ms_per_scan:.1f}", str(row.splines),
                       str(row.state_size), f"{row.ate_m:.3f}", f"{row.online_ate_m:.3f}", f"{row.odometry_ate_m:.3f}", f"{row.frontend_ate_m:.3f}",
                       row.relations)
     Console(width=max(Console().width, 150)).print(table)
-    console.print(f"peak memory (max RSS) of this process: {row.peak_rss_mb:.0f} MB")
+    ran = [row for row in rows if not isinstance(row, BenchFailure)]
+    if ran:
+        console.print(f"peak memory (max RSS) of the processes that ran the logs: "
+                      f"{max(row.peak_rss_mb for row in ran):.0f} MB")
+
+
+@app.command("config")
+def show_config(config_file: Optional[Path] = typer.Option(None, "--config", help="Print this file's "
+                                                           "configuration instead, defaults filled in.")) -> None:
+    """Print the default configuration as YAML: a starting point for --config FILE."""
+    from bsslam.io.config_file import write_config
+
+    try:
+        write_config(sys.stdout, _load_config(config_file))
+    except BsslamError as exc:
+        fail(exc)
+
+
+class TrajectoryFormat(str, Enum):
+    tum = "tum"
+    xytheta = "xytheta"
+
+
+@app.command()
+def convert(
+    source: Path = typer.Argument(..., help="Trajectory file: TUM or 'stamp x y θ' (told by its column count)."),
+    target: Path = typer.Argument(..., help="File to write."),
+    to: Optional[TrajectoryFormat] = typer.Option(None, help="Format to write (default: tum for a *.tum "
+                                                  "TARGET, else xytheta, i.e. 'stamp x y θ')."),
+) -> None:
+    """Convert a trajectory between TUM and 'stamp x y θ'."""
+    from bsslam.io.trajectory_file import format_from_name, read_trajectory, write_trajectory
+
+    fmt = to.value if to is not None else format_from_name(target)
+    try:
+        trajectory = read_trajectory(source)
+        write_trajectory(target, trajectory, fmt)
+    except BsslamError as exc:
+        fail(exc)
+    console.print(f"wrote {len(trajectory)} poses to [bold]{escape(str(target))}[/bold] ({fmt})")
 
 
 # --------------------------------------------------------------------------------------
@@ -373,7 +492,8 @@ def consistency(variant: Variant = typer.Option(..., help="Which filter variant.
                 runs: int = typer.Option(50, help="Monte Carlo runs."), seed: int = typer.Option(0),
                 world: str = typer.Option("rounded-room", help="Simulated world."),
                 steps: Optional[int] = typer.Option(None, help="Steps per run (default: the double loop)."),
-                workers: Optional[int] = typer.Option(None, help="Processes (default: every core)."),
+                workers: Optional[int] = typer.Option(None, help=WORKERS_HELP),
+                scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
                 out: Path = typer.Option(Path("results/consistency"), help=OUT_HELP)) -> None:
     """Paper Figs. 10/12: average pose NEES over Monte Carlo runs with the 95% χ² band."""
     from bsslam.experiments.consistency import consistency_experiment, write_consistency
@@ -383,7 +503,7 @@ def consistency(variant: Variant = typer.Option(..., help="Which filter variant.
     with experiment_folder(out, settings) as run_dir:
         with progress_bar(f"consistency ({variant.value})", runs, "runs") as update:
             res = consistency_experiment(variant.value, runs=runs, seed=seed, world=world, steps=steps,
-                                         workers=workers, progress=update)
+                                         workers=workers, scheduler=scheduler, progress=update)
         write_consistency(res, run_dir)
     exit_step = res.first_exit()
     print_summary({
@@ -398,7 +518,8 @@ def consistency(variant: Variant = typer.Option(..., help="Which filter variant.
 @experiment_app.command("heading-gain")
 def heading_gain(runs: int = typer.Option(50, help="Monte Carlo runs per initial σ."),
                  updates: int = typer.Option(30, help="Scans per run."), seed: int = typer.Option(0),
-                 workers: Optional[int] = typer.Option(None, help="Processes (default: every core)."),
+                 workers: Optional[int] = typer.Option(None, help=WORKERS_HELP),
+                 scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
                  out: Path = typer.Option(Path("results/heading-gain"), help=OUT_HELP)) -> None:
     """Paper Fig. 11: estimated heading σ of a stationary robot over updates."""
     from bsslam.experiments.heading import DEFAULT_SIGMAS_RAD, heading_gain_experiment, write_heading_gain
@@ -406,7 +527,8 @@ def heading_gain(runs: int = typer.Option(50, help="Monte Carlo runs per initial
     settings = {"experiment": "heading-gain", "runs": runs, "updates": updates, "seed": seed}
     with experiment_folder(out, settings) as run_dir:
         with progress_bar("heading gain", runs * len(DEFAULT_SIGMAS_RAD), "runs") as update:
-            res = heading_gain_experiment(runs=runs, updates=updates, seed=seed, workers=workers, progress=update)
+            res = heading_gain_experiment(runs=runs, updates=updates, seed=seed, workers=workers,
+                                          scheduler=scheduler, progress=update)
         write_heading_gain(res, run_dir)
     table = Table("σ₀ (rad)", "σ_φ after 1 update", f"σ_φ after {updates}", title="Heading information gain")
     for s0, sig in res.items():

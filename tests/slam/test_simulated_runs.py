@@ -7,7 +7,8 @@ from bsslam.config import SLAMConfig
 from bsslam.eval import ate, chi2_band, pose_errors
 from bsslam.experiments.consistency import simulation_config, variant_config
 from bsslam.pipeline import run_dataset
-from bsslam.sim import SimConfig, get_world, run_monte_carlo, simulate
+from bsslam.parallel import run_all
+from bsslam.sim import SimConfig, get_world, simulate
 from bsslam.slam.ekf import StackedGain
 
 LOOP_WORLDS = ["rounded-room", "corridor-loop", "mixed"]
@@ -49,7 +50,7 @@ def _nees_run(seed):
 # Without pruning it was 53/59 here (40/59, 51/59 in the other two worlds).
 def test_monte_carlo_nees_inside_chi2_band_without_extension():
     runs = 20
-    nees = np.array(run_monte_carlo(_nees_run, list(range(100, 100 + runs)), workers=2))
+    nees = np.array(run_all(_nees_run, list(range(100, 100 + runs)), workers=2))
     mean = nees[:, 1:].mean(axis=0)  # step 0 defines the map frame: P = 0
     lower, upper = chi2_band(3, runs)
     inside = (mean >= lower) & (mean <= upper)

@@ -1,8 +1,9 @@
 """All metrics of one estimated trajectory file against its references, as one flat dict
-(what ``bsslam evaluate`` prints)."""
+(what ``bsslam evaluate`` prints), saved as JSON; and its picture against the reference."""
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 from pathlib import Path
@@ -14,6 +15,7 @@ from bsslam.eval.association import associate, nearest_stamps
 from bsslam.eval.consistency import nees
 from bsslam.eval.relations import relations_error
 from bsslam.eval.trajectory_error import ate, rpe
+from bsslam.io.path_or_file import PathOrFile, open_path_or_file
 from bsslam.io.pose_covariance_file import read_pose_covariance_csv
 from bsslam.io.trajectory_file import read_trajectory
 from bsslam.trajectory import Trajectory
@@ -98,3 +100,27 @@ def evaluate_files(est_path: str | os.PathLike, ref_path: str | os.PathLike | No
                       relations_rot_mean_deg=rel.rot_mean_deg, relations_rot_std_deg=rel.rot_std_deg,
                       relations_used=rel.used, relations_total=rel.total)
     return result
+
+
+def write_metrics_json(target: PathOrFile, metrics: dict[str, Any]) -> None:
+    """Write the metrics of :func:`evaluate_files` as a JSON object (NaN where undefined)."""
+    with open_path_or_file(target, "w") as f:
+        f.write(json.dumps(metrics, indent=2) + "\n")
+
+
+def write_evaluation_plot(est_path: str | os.PathLike, ref_path: str | os.PathLike,
+                          target: str | os.PathLike, max_dt: float = 0.05, ref_offset: float = 0.0) -> Path:
+    """Draw the estimate aligned onto the reference as the ATE aligns it, and the position
+    error of the matched poses over time, to ``target`` (PNG, SVG or PDF by its suffix).
+
+    Raises:
+        InputError: unreadable files or too few matched poses.
+    """
+    from bsslam.viz.evaluation_plots import save_evaluation_figure
+
+    est, ref = read_trajectory(est_path), read_trajectory(ref_path)
+    rmse, _, aligned = ate(est, ref, max_dt, ref_offset)
+    est_idx, ref_idx = associate(aligned, ref, max_dt, ref_offset)
+    error = np.linalg.norm(aligned.poses[est_idx, :2] - ref.poses[ref_idx, :2], axis=1)
+    return save_evaluation_figure(target, aligned.poses, ref.poses, aligned.stamps[est_idx], error,
+                                  title=f"{Path(est_path).name} against {Path(ref_path).name}: ATE {rmse:.3f} m")

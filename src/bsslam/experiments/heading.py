@@ -17,13 +17,15 @@ import numpy as np
 
 from bsslam.config import SLAMConfig
 from bsslam.experiments.consistency import simulation_config
-from bsslam.sim import SimConfig, get_world, run_monte_carlo, simulate
+from bsslam.parallel import run_all
+from bsslam.sim import SimConfig, get_world, simulate
 from bsslam.slam import SplineSLAM
 
 DEFAULT_SIGMAS_RAD = (0.01, 0.05, 0.2)
 
 
-def _one_run(seed: int, sigma0: float, updates: int, config: SLAMConfig, sim: SimConfig) -> np.ndarray:
+def _one_run(run: tuple[float, int], updates: int, config: SLAMConfig, sim: SimConfig) -> np.ndarray:
+    sigma0, seed = run
     data = simulate(get_world("curved-wall"), sim, seed=seed, steps=updates + 1)
     rng = np.random.default_rng([seed, 7])
     truth = data.ground_truth.poses[0]
@@ -39,20 +41,19 @@ def _one_run(seed: int, sigma0: float, updates: int, config: SLAMConfig, sim: Si
 
 
 def heading_gain_experiment(sigmas_rad=DEFAULT_SIGMAS_RAD, runs: int = 50, updates: int = 30, seed: int = 0,
-                            workers: int | None = None, progress=None) -> dict[float, np.ndarray]:
+                            workers: int | None = None, progress=None,
+                            scheduler: str | None = None) -> dict[float, np.ndarray]:
     """Mean estimated σ_φ (rad) after each update (index 0 = after the first update, i.e.
-    the second scan; the first builds the map) per σ₀."""
+    the second scan; the first builds the map) per σ₀. The ``runs × len(sigmas_rad)`` runs
+    go where ``workers``/``scheduler`` say (see :func:`bsslam.parallel.run_all`)."""
     sim = SimConfig()
     config = simulation_config(SLAMConfig(), sim)
-    out = {}
-    total = runs * len(sigmas_rad)
-    for i, s0 in enumerate(sigmas_rad):
-        fn = partial(_one_run, sigma0=float(s0), updates=updates, config=config, sim=sim)
-        done_before = i * runs
-        prog = None if progress is None else (lambda d, t, b=done_before: progress(b + d, total))
-        res = run_monte_carlo(fn, list(range(seed, seed + runs)), workers=workers, progress=prog)
-        out[float(s0)] = np.mean(res, axis=0)
-    return out
+    sigmas = [float(s0) for s0 in sigmas_rad]
+    # one batch for every σ₀: a cluster is started once and kept busy across them
+    batch = [(s0, s) for s0 in sigmas for s in range(seed, seed + runs)]
+    fn = partial(_one_run, updates=updates, config=config, sim=sim)
+    res = run_all(fn, batch, workers=workers, scheduler=scheduler, progress=progress)
+    return {s0: np.mean(res[i * runs:(i + 1) * runs], axis=0) for i, s0 in enumerate(sigmas)}
 
 
 def write_heading_gain(result: dict[float, np.ndarray], run_dir: Path) -> list[Path]:

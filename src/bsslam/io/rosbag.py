@@ -30,10 +30,17 @@ from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
-from rosbags.highlevel import AnyReader, AnyReaderError
-from rosbags.rosbag1 import ReaderError as Rosbag1Error
-from rosbags.rosbag2 import ReaderError as Rosbag2Error
-from rosbags.typesys import Stores, get_typestore
+
+from bsslam.errors import MissingDependencyError
+
+try:  # the optional extra bsslam[ros]; open_dataset imports this module only for bags
+    from rosbags.highlevel import AnyReader, AnyReaderError
+    from rosbags.rosbag1 import ReaderError as Rosbag1Error
+    from rosbags.rosbag2 import ReaderError as Rosbag2Error
+    from rosbags.typesys import Stores, get_typestore
+except ImportError as exc:
+    raise MissingDependencyError(f"reading ROS bags needs the rosbags package ({exc}): "
+                                 "pip install 'bsslam[ros]'") from None
 
 from bsslam.dataset import Frame, SkipCounter
 from bsslam.errors import InputError

@@ -1,5 +1,8 @@
 """Trajectory text files: TUM (``stamp x y z qx qy qz qw``) and plain ``stamp x y θ``.
 
+Both are read by :func:`read_trajectory` and written by :func:`write_trajectory`
+(``bsslam convert`` turns one into the other).
+
 TUM is what evo and most SLAM benchmarks read; a planar pose becomes z = 0 and a rotation
 about z, ``q = (0, 0, sin φ/2, cos φ/2)``. The reader also takes the four-column
 ``stamp x y θ`` files (the ``*.gt.txt`` references), deciding by the column count of the
@@ -8,14 +11,21 @@ first data line. Lines starting with ``#`` and blank lines are skipped.
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import numpy as np
 
+from bsslam.errors import ConfigError
 from bsslam.io.numeric_table import parse_numeric_table
 from bsslam.io.path_or_file import PathOrFile, describe, open_path_or_file
 from bsslam.io.quaternion import quaternion_from_yaw, yaw_from_quaternion
 from bsslam.trajectory import Trajectory, wrap_angle
 
 TUM_HEADER = "# stamp x y z qx qy qz qw"
+XYTHETA_HEADER = "# stamp x y theta"
+#: "tum": ``stamp x y z qx qy qz qw``; "xytheta": ``stamp x y θ`` (s, m, rad)
+TRAJECTORY_FORMATS = ("tum", "xytheta")
 
 
 def _format_row(values: np.ndarray) -> str:
@@ -35,6 +45,34 @@ def write_tum(target: PathOrFile, trajectory: Trajectory) -> None:
         f.write(TUM_HEADER + "\n")
         for row in table:
             f.write(_format_row(row) + "\n")
+
+
+def write_xytheta(target: PathOrFile, trajectory: Trajectory) -> None:
+    """Write ``trajectory`` as lines ``stamp x y θ`` (s, m, rad in (−π, π]), the format of
+    the ``*.gt.txt`` references. Covariances are not written."""
+    table = np.column_stack([trajectory.stamps, trajectory.poses])
+    with open_path_or_file(target, "w") as f:
+        f.write(XYTHETA_HEADER + "\n")
+        for row in table:
+            f.write(_format_row(row) + "\n")
+
+
+def format_from_name(path: str | os.PathLike) -> str:
+    """The trajectory format a file name asks for: "tum" for ``*.tum``, else "xytheta"
+    (``.txt`` is used for both, so only ``.tum`` is taken as a sign)."""
+    return "tum" if Path(path).suffix.lower() == ".tum" else "xytheta"
+
+
+def write_trajectory(target: PathOrFile, trajectory: Trajectory, format: str) -> None:
+    """Write ``trajectory`` in one of :data:`TRAJECTORY_FORMATS`.
+
+    Raises:
+        ConfigError: an unknown format.
+        InputError: the file cannot be written.
+    """
+    if format not in TRAJECTORY_FORMATS:
+        raise ConfigError(f"trajectory format must be one of {TRAJECTORY_FORMATS}, got {format!r}")
+    (write_tum if format == "tum" else write_xytheta)(target, trajectory)
 
 
 def read_trajectory(source: PathOrFile) -> Trajectory:

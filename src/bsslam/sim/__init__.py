@@ -1,4 +1,4 @@
-"""Simulated worlds with exact geometry, a laser/odometry simulator and a Monte Carlo runner.
+"""Simulated worlds with exact geometry and a laser/odometry simulator.
 
 Typical use::
 
@@ -9,7 +9,6 @@ Typical use::
 """
 
 from bsslam.sim.geometry import Arc, PolarCurve, Segment, WallSet, ray_cast, rounded_rectangle_walls
-from bsslam.sim.montecarlo import limit_blas_threads, run_monte_carlo
 from bsslam.sim.paths import LoopPath, StationaryPath, rounded_rectangle_loop
 from bsslam.sim.simulator import (
     SimConfig,
@@ -36,11 +35,9 @@ __all__ = [
     "compose_increments",
     "get_world",
     "increment_sigma",
-    "limit_blas_threads",
     "relative_increments",
     "ray_cast",
     "rounded_rectangle_loop",
     "rounded_rectangle_walls",
-    "run_monte_carlo",
     "simulate",
 ]

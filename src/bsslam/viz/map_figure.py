@@ -71,7 +71,10 @@ def save_map_figure(
         pad = 0.05 * max(float(np.max(hi - lo)), 1.0)
         ax.set_xlim(lo[0] - pad, hi[0] + pad)
         ax.set_ylim(lo[1] - pad, hi[1] + pad)
-    ax.set_aspect("equal", adjustable="datalim")
+    # Both limits are fixed by the frame, so the equal aspect must shrink the axes box:
+    # with adjustable="datalim" matplotlib would override one of the limits (and log a
+    # warning on every save).
+    ax.set_aspect("equal", adjustable="box")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     if title:
