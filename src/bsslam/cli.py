@@ -15,7 +15,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
-from bsslam.errors import BsslamError
+from bsslam.errors import BsslamError, ConfigError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="BS-SLAM: EKF SLAM with B-spline map features for 2D laser range finders.")
@@ -158,6 +158,8 @@ def run(
     from bsslam.pipeline import run_dataset
 
     try:
+        if steps is not None and steps < 1:
+            raise ConfigError(f"--steps must be ≥ 1, got {steps}")
         config = _load_config(config_file)
         if mode is not None:
             config = config.replace(mode=mode)
