@@ -321,6 +321,12 @@ def check_outcome(result, log: Path, out: Path, expected) -> str:
     assert np.all(np.linalg.eigvalsh(mats) >= -1e-12)
     for name in ("odometry.tum", "frontend.tum"):
         assert np.all(np.isfinite(np.loadtxt(run / name, comments="#", ndmin=2)))
+    # no implausible jump reaches the filter: the odometry it used moves at most at the
+    # default limits (3 m/s over at least 0.2 s), the estimate at most a search window more
+    odo = np.loadtxt(run / "odometry.tum", comments="#", ndmin=2)
+    allowed = 3.0 * np.maximum(np.diff(odo[:, 0]), 0.2)
+    assert np.all(np.hypot(*np.diff(odo[:, 1:3], axis=0).T) <= allowed + 1e-6)
+    assert np.all(np.hypot(*np.diff(traj[:, 1:3], axis=0).T) <= allowed + 1.0)
     return "clean"
 
 
