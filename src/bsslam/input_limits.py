@@ -65,7 +65,9 @@ class InputLimits:
 
 
 def wrap(angle: float) -> float:
-    """``angle`` (rad, finite) wrapped to (−π, π]."""
+    """``angle`` (rad, finite) wrapped to (−π, π]; unchanged (bit for bit) when inside."""
+    if -math.pi < angle <= math.pi:
+        return angle
     return math.pi - (math.pi - angle) % (2.0 * math.pi)
 
 
