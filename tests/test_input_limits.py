@@ -73,20 +73,28 @@ def test_gate_passes_clean_poses_bit_for_bit_and_bridges_bad_steps():
     gate = OdometryGate(LIMITS)
     raw = [[0.0, 0.0, 0.0], [0.3, 0.0, 0.1], [100.0, 0.0, 0.1], [100.3, 0.1, 0.2], [np.nan, 0, 0],
            [100.9, 0.2, 0.3]]
-    out = []
-    for k, pose in enumerate(raw):
-        accepted, reason = gate.accept(float(k), pose)
-        out.append((accepted, reason))
+    out = [gate.accept(float(k), pose) for k, pose in enumerate(raw)]
     assert out[0][1] is None and out[0][0].tolist() == raw[0]
     assert out[1][1] is None and out[1][0].tolist() == raw[1]          # unchanged, bit for bit
     assert out[2][1] == "implausible odometry increment (too fast)"
-    np.testing.assert_array_equal(out[2][0], out[1][0])               # zero motion
+    # the bridge repeats the previous plausible increment (same duration: 1 s)
+    np.testing.assert_allclose(between(out[1][0], out[2][0]), between(raw[0], raw[1]), atol=1e-12)
     assert out[3][1] is None                                          # re-anchored at the jump
     np.testing.assert_allclose(between(out[2][0], out[3][0]), between(raw[2], raw[3]), atol=1e-12)
     assert out[4][1] == "non-finite odometry pose"
-    np.testing.assert_array_equal(out[4][0], out[3][0])
+    np.testing.assert_allclose(between(out[3][0], out[4][0]), between(raw[2], raw[3]), atol=1e-12)
     # after an invalid pose the next increment is measured from the last valid one
     np.testing.assert_allclose(between(out[3][0], out[5][0]), between(raw[3], raw[5]), atol=1e-12)
+
+
+def test_gate_bridges_with_zero_motion_before_any_step_and_never_extrapolates_a_gap():
+    gate = OdometryGate(LIMITS)
+    gate.accept(0.0, [0.0, 0.0, 0.0])
+    pose, reason = gate.accept(1.0, [50.0, 0.0, 0.0])
+    assert reason is not None and pose.tolist() == [0.0, 0.0, 0.0]   # no velocity yet
+    gate.accept(2.0, [50.5, 0.0, 0.0])                                # 0.5 m in 1 s
+    pose, reason = gate.accept(1000.0, [np.inf, 0.0, 0.0])            # a long gap: one step at most
+    assert reason is not None and pose[0] == pytest.approx(1.0)
 
 
 def test_gate_without_a_first_valid_pose_returns_none():

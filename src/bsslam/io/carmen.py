@@ -35,7 +35,7 @@ beam count ≤ ``max_beams`` and the line no longer than such a scan can be; bea
 finite and strictly increasing within a turn (angle increment ≠ 0); NaN/inf and negative
 ranges kept as invalid beams (counted); odometry poses finite, within
 ``max_coordinate_m`` and moving at a plausible speed (an implausible step is bridged with
-zero motion, see :class:`~bsslam.input_limits.OdometryGate`); headings wrapped; laser
+the previous velocity, see :class:`~bsslam.input_limits.OdometryGate`); headings wrapped; laser
 offsets (PARAM or the message's laser pose) finite and within ``max_laser_offset_m``.
 
 Bad input — a malformed line, invalid beams, an empty scan, a duplicate or backwards

@@ -82,7 +82,7 @@ def require_regular_file(path: str) -> None:
 def checked_frames(items: Iterable[tuple[int, Frame]], limits: InputLimits, issues: InputIssues) -> Iterator[Frame]:
     """The reader's frames after the odometry check: each ``(line, frame)`` passes
     :class:`~bsslam.input_limits.OdometryGate`; an implausible or invalid pose is a problem
-    at ``line`` and the step is bridged with zero motion (a bad first pose skips its scan).
+    at ``line`` and the step is bridged (a bad first pose skips its scan).
 
     Raises:
         InputError: no frame at all came through (in both modes), naming the file and what
@@ -96,7 +96,7 @@ def checked_frames(items: Iterable[tuple[int, Frame]], limits: InputLimits, issu
             if pose is None:
                 issues.problem(f"{reason} (scan skipped)", line)
                 continue
-            issues.problem(f"{reason} (bridged with zero motion)", line)
+            issues.problem(f"{reason} (bridged)", line)
         count += 1
         yield Frame(frame.stamp, pose, frame.scan, frame.laser_offset)
     if count == 0:

@@ -19,7 +19,7 @@ Validation (once, here, with :mod:`bsslam.input_limits` and ``ReaderConfig.limit
 scan's header must give finite angles, a non-zero ``angle_increment`` consistent with
 ``angle_max`` and at most ``max_beams`` beams; negative ranges become NaN; odometry poses
 must be finite, within ``max_coordinate_m`` and move at a plausible speed (an implausible
-step is bridged with zero motion, see :class:`~bsslam.input_limits.OdometryGate`).
+step is bridged, see :class:`~bsslam.input_limits.OdometryGate`).
 
 Scans before the first or after the last odometry are skipped and counted. Bad input (an
 undecodable message, an invalid scan header, a duplicate or backwards stamp, an invalid
