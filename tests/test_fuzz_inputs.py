@@ -36,7 +36,7 @@ from bsslam.cli import app
 from bsslam.sim import SimConfig, get_world, simulate
 
 N_SCANS = 6
-SEEDS_PER_KIND = 6
+SEEDS_PER_KIND = 8
 runner = CliRunner()
 
 

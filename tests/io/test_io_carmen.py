@@ -328,15 +328,16 @@ def test_bad_first_odometry_skips_its_scan(tmp_path):
 
 def test_bad_param_offset_and_laser_pose_are_counted_not_fatal(tmp_path):
     lines = ["PARAM robot_frontlaser_offset nan host 0", "PARAM robot_frontlaser_side_offset 1e300 host 0",
-             "PARAM robot_frontlaser_angular_offset 7.0 host 0", *_walk(3)]
-    lines[4] = flaser([1.0] * 180, 10.5, [0.1, 0, 0], laser=[float("nan"), 0, 0])
+             "PARAM robot_frontlaser_angular_offset 1000.0 host 0",
+             "PARAM robot_frontlaser_angular_offset 4.0 host 0", *_walk(3)]
+    lines[5] = flaser([1.0] * 180, 10.5, [0.1, 0, 0], laser=[float("nan"), 0, 0])
     path = write_log(tmp_path, lines)
     reader, frames = _frames(path)
     assert len(frames) == 3
-    assert reader.skipped.counts == {"invalid laser offset in PARAM (ignored)": 2,
+    assert reader.skipped.counts == {"invalid laser offset in PARAM (ignored)": 3,
                                      "non-finite laser pose (PARAM offset used)": 1}
     for f in frames:   # the valid angular offset is wrapped, the invalid ones left at 0
-        np.testing.assert_allclose(f.laser_offset, [0.0, 0.0, float(wrap_angle(7.0))])
+        np.testing.assert_allclose(f.laser_offset, [0.0, 0.0, float(wrap_angle(4.0))])
     assert f"{path}:1: invalid laser offset in PARAM (ignored)" in reader.skipped.examples
     with pytest.raises(InputError, match="PARAM") as info:
         list(CarmenReader(path, strict=True))

@@ -327,7 +327,8 @@ class CarmenReader:
             number_value = float(value)
         except ValueError:
             raise MalformedLine("non-numeric value", f"{name} = {value!r}") from None
-        limit = math.inf if target[1] == 2 else self.config.limits.max_laser_offset_m
+        # an angular offset beyond a full turn is garbage, not a mounting
+        limit = 2.0 * math.pi if target[1] == 2 else self.config.limits.max_laser_offset_m
         if not (math.isfinite(number_value) and abs(number_value) <= limit):
             self._issues.problem("invalid laser offset in PARAM (ignored)", number, f"{name} = {value!r}")
             return
