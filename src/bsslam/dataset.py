@@ -31,16 +31,26 @@ class Frame:
 
 @dataclass
 class SkipCounter:
-    """Counts of input skipped by a reader, by reason, with the first few locations."""
+    """Counts of input skipped by a reader, by reason, with the first few locations.
+
+    ``counts`` are skips worth reporting (bad or unusable input); ``ignored`` counts input
+    that is not meant for the reader (message types it does not use, a second laser
+    stream), silently, and is not part of ``total``.
+    """
 
     counts: dict[str, int] = field(default_factory=dict)
     examples: list[str] = field(default_factory=list)
     max_examples: int = 20
+    ignored: dict[str, int] = field(default_factory=dict)
 
     def add(self, reason: str, where: str | None = None) -> None:
         self.counts[reason] = self.counts.get(reason, 0) + 1
         if where is not None and len(self.examples) < self.max_examples:
             self.examples.append(f"{where}: {reason}")
+
+    def ignore(self, key: str) -> None:
+        """Count input not meant for the reader under ``key`` (not a skip)."""
+        self.ignored[key] = self.ignored.get(key, 0) + 1
 
     @property
     def total(self) -> int:

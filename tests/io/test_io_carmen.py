@@ -1,12 +1,14 @@
 """The CARMEN reader: round trips of every message kind, bad input, real logs."""
 
 import math
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from bsslam.errors import ConfigError, InputError
+from bsslam.input_limits import InputLimits
 from bsslam.io.carmen import CarmenReader
 from bsslam.io.carmen_messages import carmen_beam_angles
 from bsslam.io.no_return import detect_no_return_code, mark_no_return
@@ -98,9 +100,11 @@ def test_flaser_round_trip_with_junk_lines_and_param_offset(tmp_path):
     np.testing.assert_allclose(frames[0].scan.angles, np.radians(np.arange(-90, 90)), atol=1e-12)
     assert frames[0].scan.max_range == 80.0
     np.testing.assert_array_equal(frames[0].laser_offset, [0.1, 0.0, 0.0])
-    assert reader.skipped.counts == {"unused message type SYNC": 1, "unused message type NEFF": 1,
-                                     "unused message type GARBAGE": 1, "unused message type ODOM": 1}
-    assert reader.skipped.examples == []  # unused types are no problems
+    # message types the reader does not use (ODOM with FLASER included) are no problems:
+    # counted silently under one key, not as skips
+    assert reader.skipped.counts == {} and reader.skipped.total == 0
+    assert reader.skipped.ignored == {"other_messages": 4}
+    assert reader.skipped.examples == []
 
 
 def test_flaser_laser_offset_from_the_two_pose_triples(tmp_path):
@@ -158,8 +162,8 @@ def test_best_laser_stream_is_chosen_and_the_others_counted(tmp_path):
     path = write_log(tmp_path, lines)
     reader, frames = _frames(path)
     assert reader.laser_message == "ROBOTLASER1" and len(frames) == 1
-    assert reader.skipped.counts["unused laser stream RAWLASER1"] == 1
-    assert reader.skipped.counts["unused laser stream FLASER"] == 1
+    # the two other laser lines and the two ODOM lines are ignored silently, not skips
+    assert reader.skipped.total == 0 and reader.skipped.ignored == {"other_messages": 4}
     reader, frames = _frames(path, config=ReaderConfig(laser_message="RAWLASER1"))
     assert len(frames) == 1 and len(frames[0].scan) == 3
 
@@ -271,3 +275,140 @@ def test_first_scans_of_the_intel_log_match_the_reference_stamps():
     # no-return beams (81.83 in this log) are +inf, everything else below 80 m
     ranges = np.concatenate([f.scan.ranges for f in frames])
     assert np.all((ranges < 80.0) | np.isinf(ranges))
+
+
+# -- input limits (issue 18) -------------------------------------------------------------
+def _walk(n, step_m=0.1, dt=0.5, start=10.0):
+    """n FLASER lines of a robot driving along x at step_m per dt (plausible)."""
+    return [flaser([1.0 + 0.01 * i] * 180, start + dt * i, [step_m * i, 0.0, 0.0]) for i in range(n)]
+
+
+@pytest.mark.parametrize("bad_pose, reason", [
+    ([1e308, 0.0, 0.0], "odometry pose beyond max_coordinate_m (bridged)"),
+    ([float("nan"), 0.0, 0.0], "non-finite odometry pose (bridged)"),
+    ([0.3, float("-inf"), 0.0], "non-finite odometry pose (bridged)"),
+    ([100.0, 0.0, 0.0], "implausible odometry increment (too fast) (bridged)"),
+    ([0.3, 0.0, math.pi], "implausible odometry increment (turns too fast) (bridged)"),
+])
+def test_bad_odometry_is_bridged_counted_and_strict_raises(tmp_path, bad_pose, reason):
+    lines = _walk(6)
+    lines[3] = flaser([1.0] * 180, 11.5, bad_pose)
+    path = write_log(tmp_path, lines)
+    reader, frames = _frames(path)
+    assert len(frames) == 6                       # every scan is kept
+    poses = np.array([f.odometry for f in frames])
+    assert np.all(np.isfinite(poses))
+    # the bad step repeats the previous velocity (0.1 m per 0.5 s); a spike re-anchors, so
+    # the way back is bridged too; the robot's steady motion comes out unchanged
+    np.testing.assert_allclose(np.diff(poses[:, 0]), 0.1, atol=1e-9)
+    np.testing.assert_allclose(poses[:, 1:], 0.0, atol=1e-9)
+    assert np.all(np.abs(poses[:, 2]) <= math.pi)
+    assert reader.skipped.counts[reason] >= 1
+    assert f"{path}:4: {reason}" in reader.skipped.examples
+    with pytest.raises(InputError) as info:
+        list(CarmenReader(path, strict=True))
+    assert (info.value.path, info.value.line) == (str(path), 4)
+
+
+def test_clean_odometry_passes_bit_for_bit_and_headings_are_wrapped(tmp_path):
+    lines = [flaser([1.0] * 180, 1.0 + i, [0.3 * i, -0.2 * i, 3.0 + 0.5 * i]) for i in range(5)]
+    reader, frames = _frames(write_log(tmp_path, lines))
+    assert reader.skipped.total == 0
+    for i, f in enumerate(frames):
+        assert f.odometry[:2].tolist() == [0.3 * i, -0.2 * i]
+        assert f.odometry[2] == pytest.approx(float(wrap_angle(3.0 + 0.5 * i)), abs=1e-12)
+
+
+def test_bad_first_odometry_skips_its_scan(tmp_path):
+    lines = _walk(3)
+    lines[0] = flaser([1.0] * 180, 10.0, [float("nan"), 0.0, 0.0])
+    reader, frames = _frames(write_log(tmp_path, lines))
+    assert len(frames) == 2 and reader.skipped.counts == {"non-finite odometry pose (scan skipped)": 1}
+
+
+def test_bad_param_offset_and_laser_pose_are_counted_not_fatal(tmp_path):
+    lines = ["PARAM robot_frontlaser_offset nan host 0", "PARAM robot_frontlaser_side_offset 1e300 host 0",
+             "PARAM robot_frontlaser_angular_offset 1000.0 host 0",
+             "PARAM robot_frontlaser_angular_offset 4.0 host 0", *_walk(3)]
+    lines[5] = flaser([1.0] * 180, 10.5, [0.1, 0, 0], laser=[float("nan"), 0, 0])
+    path = write_log(tmp_path, lines)
+    reader, frames = _frames(path)
+    assert len(frames) == 3
+    assert reader.skipped.counts == {"invalid laser offset in PARAM (ignored)": 3,
+                                     "non-finite laser pose (PARAM offset used)": 1}
+    for f in frames:   # the valid angular offset is wrapped, the invalid ones left at 0
+        np.testing.assert_allclose(f.laser_offset, [0.0, 0.0, float(wrap_angle(4.0))])
+    assert f"{path}:1: invalid laser offset in PARAM (ignored)" in reader.skipped.examples
+    with pytest.raises(InputError, match="PARAM") as info:
+        list(CarmenReader(path, strict=True))
+    assert info.value.line == 1
+
+
+def test_stream_is_chosen_by_valid_scans_not_first_lines(tmp_path):
+    bad = [robotlaser([1.0] * 4, 1.0 + 0.01 * i, [0, 0, 0], [0, 0, 0]).replace(" 4 ", " 9 ", 1) for i in range(20)]
+    lines = bad + _walk(30)
+    reader, frames = _frames(write_log(tmp_path, lines))
+    assert reader.laser_message == "FLASER" and len(frames) == 30
+    # the malformed ROBOTLASER1 lines are not the chosen stream: ignored, not skips
+    assert reader.skipped.total == 0 and reader.skipped.ignored == {"other_messages": 20}
+
+
+@pytest.mark.parametrize("lines", [[], ["# only a comment"], [odom([0, 0, 0], 1.0), odom([1, 0, 0], 2.0)],
+                                   ["FLASER 2 1.0", "garbage line"]])
+@pytest.mark.parametrize("strict", [False, True])
+def test_no_valid_scan_is_an_error_in_both_modes(tmp_path, lines, strict):
+    path = write_log(tmp_path, lines)
+    with pytest.raises(InputError, match="no laser scans|malformed") as info:
+        list(CarmenReader(path, strict=strict))
+    assert info.value.path == str(path)
+
+
+@pytest.mark.parametrize("head, what", [(b"\x1f\x8b\x08\x00", "gzip"), (b"\x89PNG\r\n\x1a\n\x00\x00", "PNG"),
+                                        ("FLASER 1 1.0".encode("utf-16"), "UTF-16"),
+                                        (b"FLASER\x00\x00\x01", "binary")])
+def test_binary_content_is_a_clear_error(tmp_path, head, what):
+    path = tmp_path / "log.clf"
+    path.write_bytes(head + b"\x00" * 100)
+    with pytest.raises(InputError, match=what) as info:
+        CarmenReader(path)
+    assert info.value.path == str(path)
+
+
+def test_fifo_and_devices_are_refused_before_opening(tmp_path):
+    fifo = tmp_path / "pipe.clf"
+    os.mkfifo(fifo)
+    with pytest.raises(InputError, match="not a regular file"):
+        CarmenReader(fifo)           # would block forever if it were opened
+    with pytest.raises(InputError, match="not a regular file"):
+        CarmenReader("/dev/null")
+
+
+def test_bom_and_crlf_are_accepted(tmp_path):
+    path = tmp_path / "log.clf"
+    path.write_bytes(b"\xef\xbb\xbf" + "\r\n".join(_walk(3)).encode() + b"\r\n")
+    reader, frames = _frames(path)
+    assert len(frames) == 3 and reader.skipped.total == 0
+
+
+def test_too_many_beams_and_overlong_lines_are_skipped(tmp_path):
+    config = ReaderConfig(limits=InputLimits(max_beams=200))
+    lines = _walk(3)
+    lines.insert(1, flaser([1.0] * 300, 10.2, [0, 0, 0]))             # too many beams
+    lines.insert(2, flaser([1.0] * 5000, 10.3, [0, 0, 0]))            # longer than a line may be
+    path = write_log(tmp_path, lines)
+    reader, frames = _frames(path, config=config)
+    assert len(frames) == 3
+    assert reader.skipped.counts == {"too many beams": 1, "line too long": 1}
+    assert f"{path}:3: line too long" in reader.skipped.examples
+
+
+def test_angle_increment_zero_and_negative_ranges(tmp_path):
+    lines = [odom([0, 0, 0], 0.5), rawlaser([1.0] * 5, 1.0, res=0.0), rawlaser([1.0, -2.0, 3.0], 2.0),
+             odom([0, 0, 0], 3.0)]
+    path = write_log(tmp_path, lines)
+    reader, frames = _frames(path)
+    assert len(frames) == 1 and np.isnan(frames[0].scan.ranges[1])
+    assert reader.skipped.counts == {"angle increment 0": 1, "negative ranges (kept as invalid beams)": 1}
+    with pytest.raises(InputError, match="angle increment 0") as info:
+        list(CarmenReader(path, strict=True))
+    assert info.value.line == 2

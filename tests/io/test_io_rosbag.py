@@ -113,3 +113,42 @@ def test_mcap_file_alone_is_readable(tmp_path):
     folder = standard_bag("ros2-mcap").write(tmp_path / "b")
     mcap = next(Path(folder).glob("*.mcap"))
     assert len(list(RosbagReader(mcap))) == 2
+
+
+# -- input limits (issue 18) -------------------------------------------------------------
+@pytest.mark.parametrize("kind", ["ros1", "ros2-sqlite3"])
+def test_invalid_scan_headers_and_odometry_are_counted_and_strict_raises(tmp_path, kind):
+    bag = Bag(kind)
+    bag.odom(0.5, 0.0, 0.0, 0.0)
+    bag.scan(1.0)
+    bag.scan(1.1, increment=0.0)                          # message 3
+    bag.scan(1.2, increment=float("nan"))
+    bag.scan(1.3, angle_max=float("nan"))
+    bag.scan(1.4, angle_max=3.0)                          # disagrees with the beams
+    bag.odom(1.45, float("nan"), 0.0, 0.0)
+    bag.scan(1.5, ranges=[1.0, -1.0, 2.0])
+    bag.odom(2.0, 0.2, 0.0, 0.0)
+    path = bag.write(bag_path(tmp_path, kind))
+    reader = RosbagReader(path)
+    frames = list(reader)
+    assert [f.stamp for f in frames] == pytest.approx([1.0, 1.5])
+    assert np.isnan(frames[1].scan.ranges[1])
+    assert reader.skipped.counts == {"angle increment 0": 1, "non-finite beam angles in the header": 1,
+                                     "non-finite angle_max": 1,
+                                     "angle_max disagrees with angle_min + (n−1)·angle_increment": 1,
+                                     "non-finite odometry pose in /odom": 1}
+    assert reader.skipped.examples[0] == f"{path}:3: angle increment 0"
+    with pytest.raises(InputError, match="angle increment 0") as info:
+        list(RosbagReader(path, strict=True))
+    assert (info.value.path, info.value.line) == (str(path), 3)
+
+
+def test_bag_without_a_valid_scan_is_an_error(tmp_path):
+    bag = Bag("ros2-sqlite3")
+    bag.odom(0.5, 0.0, 0.0, 0.0)
+    bag.scan(1.0, increment=0.0)
+    bag.odom(2.0, 0.0, 0.0, 0.0)
+    path = bag.write(tmp_path / "b")
+    with pytest.raises(InputError, match="no laser scans") as info:
+        list(RosbagReader(path))
+    assert info.value.path == str(path)

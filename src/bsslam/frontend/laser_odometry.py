@@ -10,7 +10,14 @@ at the first frame's odometry pose). For every frame after the first:
    covariance turned into the previous robot frame; when the match is not trusted the raw
    increment is returned with the odometry-model covariance (a *fallback*, counted),
 4. the scan becomes a keyframe when the robot is far enough from the last one; the
-   submap is the union of the last ``submap_keyframes`` keyframes, thinned.
+   submap is the union of the last ``submap_keyframes`` keyframes, thinned. Keyframes
+   farther from the newest than ``2·max_range_m + search_window_m`` cannot overlap its
+   scan and are dropped, which also bounds the submap's extent (and its grids) after a
+   long jump of the odometry.
+
+Input is checked once on entry (:mod:`bsslam.input_limits`): a non-finite or huge
+odometry pose or laser offset raises :class:`~bsslam.errors.InputError` instead of
+reaching the numba kernels.
 
 The covariance is that of the new pose *given* the submap, i.e. of the increment given
 the previous pose. Increments matched against a shared submap are slightly correlated;
@@ -27,8 +34,13 @@ import numpy as np
 
 from bsslam.dataset import Frame
 from bsslam.config import FrontendConfig
+from bsslam.errors import InputError
+from bsslam.input_limits import InputLimits, offset_problem, pose_problem
 from bsslam.frontend.scan_matcher import MatchResult, ReferenceMap, estimate_normals, scan_points, voxel_thin
 
+
+# Limits of the poses the front end accepts (the defaults of the readers').
+_LIMITS = InputLimits()
 
 # One pose at a time, :mod:`bsslam.se2`'s compose/between cost ~20 µs of numpy calls each
 # (several per scan); these do the same float arithmetic, in the same order, on Python
@@ -137,8 +149,17 @@ class LaserOdometry:
         return np.diag([sxy ** 2, sxy ** 2, sphi ** 2])
 
     def step(self, frame: Frame) -> FrontendStep:
-        """Process one frame; returns the corrected increment since the previous frame."""
+        """Process one frame; returns the corrected increment since the previous frame.
+
+        Raises:
+            InputError: the frame's odometry pose or laser offset is non-finite or beyond
+                the physical limits (readers bridge such poses before they get here).
+        """
         cfg = self.config
+        reason = pose_problem(frame.odometry, _LIMITS) or (
+            None if frame.laser_offset is None else offset_problem(frame.laser_offset, _LIMITS))
+        if reason is not None:
+            raise InputError(f"front end at stamp {frame.stamp}: {reason}")
         odometry = np.asarray(frame.odometry, dtype=float).reshape(3)
         points = scan_points(frame.scan, frame.laser_offset, cfg)
         self.stats.frames += 1
@@ -196,6 +217,12 @@ class LaserOdometry:
         normals, linear = estimate_normals(pts, self.config.normal_neighbours)
         pose = np.asarray(pose, dtype=float).copy()
         kf = _Keyframe(pose, pts, normals, linear, *self._to_world(pose, pts, normals))
+        reach = 2.0 * self.config.max_range_m + self.config.search_window_m
+        near = [k for k in self._keyframes if math.hypot(*(k.pose[:2] - pose[:2])) <= reach]
+        if len(near) < len(self._keyframes):
+            # the robot jumped away from them: they cannot overlap its scans any more
+            self._keyframes = deque(near, maxlen=self.config.submap_keyframes)
+            self._reference = None
         self._keyframes.append(kf)
         self.stats.keyframes += 1
         self._since_rebuild += 1

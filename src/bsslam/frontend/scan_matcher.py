@@ -22,6 +22,11 @@ points are given in the robot frame (laser offset already applied, see
    and a floor.
 4. Trust: too few points, too few inliers → ``ok = False`` (the caller falls back to
    odometry); a weak translation direction → ``degenerate = True``.
+
+Bounded work: the fields' size grows with the extent of the reference points, so a
+reference wider than :data:`MAX_FIELD_CELLS` allows is not rasterised (the map is not
+usable, reason ``reference_too_large``, and the caller falls back to odometry) and the
+numba kernels only ever see finite coordinates within :data:`MAX_EXTENT_M`.
 """
 
 from __future__ import annotations
@@ -46,7 +51,16 @@ def _wrap(a: float) -> float:
 
 
 #: Reasons a match is not trusted (``MatchResult.reason``); "ok" otherwise.
-FAIL_REASONS = ("too_few_scan_points", "too_few_reference_points", "too_few_correspondences", "poor_score")
+FAIL_REASONS = ("too_few_scan_points", "too_few_reference_points", "too_few_correspondences", "poor_score",
+                "reference_too_large")
+
+#: Most cells one likelihood field may have (float32: 64 MiB). A submap of the default
+#: front end (20 keyframes within 2·max_range + window of the newest) needs at most ~13 M
+#: cells at 5 cm; real runs use ~1–2 M.
+MAX_FIELD_CELLS = 1 << 24
+#: Largest extent (m) of reference or scan points handed to the kernels: their cell
+#: arithmetic is in machine integers, which huge coordinates would overflow.
+MAX_EXTENT_M = 1e6
 
 
 # ---------------------------------------------------------------------------------------------
@@ -157,9 +171,24 @@ class LikelihoodField:
     kernel_value: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0, dtype=np.float32))
     radius: int = 0
 
+    @staticmethod
+    def cells_needed(points: np.ndarray, resolution: float, sigma: float, max_offset_m: float) -> float:
+        """Cells (a float, may be huge) the field of ``points`` (m, 2) would have."""
+        pad = math.ceil(max_offset_m / resolution) + 1
+        margin = 2 * (2 * pad + math.ceil(3.0 * sigma / resolution) + 1) + 2
+        span = points.max(axis=0) - points.min(axis=0)
+        return float(np.prod(span / resolution + margin))
+
     @classmethod
     def build(cls, points: np.ndarray, resolution: float, sigma: float, max_offset_m: float) -> LikelihoodField:
-        """Rasterise ``points`` (m, 2); offsets of up to ``max_offset_m`` are scored later."""
+        """Rasterise ``points`` (m, 2); offsets of up to ``max_offset_m`` are scored later.
+
+        Raises:
+            InputError: the field would exceed :data:`MAX_FIELD_CELLS` (check with
+                :meth:`cells_needed` first).
+        """
+        if cls.cells_needed(points, resolution, sigma, max_offset_m) > MAX_FIELD_CELLS:
+            raise InputError("reference points too far apart for a likelihood field (MAX_FIELD_CELLS)")
         pad = int(np.ceil(max_offset_m / resolution)) + 1
         radius = int(np.ceil(3.0 * sigma / resolution))
         margin = 2 * pad + radius + 1
@@ -366,6 +395,9 @@ class ReferenceMap:
             normals, linear = estimate_normals(points, config.normal_neighbours)
         self.size = points.shape[0]
         self.usable = self.size >= config.min_points and int(np.count_nonzero(linear)) >= 3
+        self.unusable_reason = "too_few_reference_points"
+        if self.usable and not self._fits(points):
+            self.usable, self.unusable_reason = False, "reference_too_large"
         if not self.usable:
             return
         window = config.search_window_m
@@ -375,6 +407,18 @@ class ReferenceMap:
         self.line_points = points[linear]
         self.line_normals = np.asarray(normals, dtype=float)[linear]
         self._index_lines()
+
+    def _fits(self, points: np.ndarray) -> bool:
+        """Whether the fields of ``points`` stay within :data:`MAX_FIELD_CELLS` and the
+        coordinates within :data:`MAX_EXTENT_M`."""
+        cfg = self.config
+        if np.max(np.abs(points)) > MAX_EXTENT_M:
+            return False
+        fine = LikelihoodField.cells_needed(points, cfg.fine_step_m, cfg.fine_sigma_m,
+                                            cfg.search_window_m + cfg.coarse_step_m)
+        coarse = LikelihoodField.cells_needed(points, 0.5 * cfg.coarse_step_m, cfg.coarse_sigma_m,
+                                              cfg.search_window_m)
+        return max(fine, coarse) <= MAX_FIELD_CELLS
 
     def _index_lines(self) -> None:
         """Grid of the line points (:func:`~bsslam.frontend.kernels.grid_index`, cells of
@@ -393,6 +437,8 @@ class ReferenceMap:
         if not self.usable:
             return False
         points = np.asarray(points, dtype=float).reshape(-1, 2)
+        if not np.all(np.isfinite(points)) or (points.size and np.max(np.abs(points)) > MAX_EXTENT_M):
+            return False
         self.coarse.add(points)
         self.fine.add(points)
         self.points = np.concatenate((self.points, points))
@@ -550,7 +596,10 @@ class ReferenceMap:
             return MatchResult(guess.copy(), prior_covariance.copy(), score, False, reason, **extra)
 
         if not self.usable:
-            return fail("too_few_reference_points")
+            return fail(self.unusable_reason)
+        if not (np.all(np.isfinite(guess)) and np.all(np.isfinite(points))
+                and np.max(np.abs(guess[:2]), initial=0.0) <= MAX_EXTENT_M):
+            raise InputError("scan points and pose guess must be finite and within MAX_EXTENT_M")
         keep = voxel_thin(points, cfg.scan_voxel_m)
         pts = points[keep]
         if pts.shape[0] < cfg.min_points:

@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import logging
+import os
+import stat
+from typing import Iterable, Iterator
 
-from bsslam.dataset import SkipCounter
+from bsslam.dataset import Frame, SkipCounter
 from bsslam.errors import InputError
+from bsslam.input_limits import InputLimits, OdometryGate
 
 
 class InputIssues:
@@ -36,6 +40,10 @@ class InputIssues:
         counted, never an error; located only when ``line`` is given."""
         self.skipped.add(reason, None if line is None else f"{self.path}:{line}")
 
+    def ignore(self, key: str = "other_messages") -> None:
+        """Input not meant for this reader: counted silently, never reported as a skip."""
+        self.skipped.ignore(key)
+
     def stamp_advances(self, stamp: float, previous: float | None, what: str, line: int) -> bool:
         """True when ``stamp`` is later than ``previous``; else a "duplicate"/"backwards
         <what> timestamp" problem and False."""
@@ -46,9 +54,52 @@ class InputIssues:
         return False
 
     def log_summary(self, logger: logging.Logger) -> None:
-        """One warning listing the problems (not the unused message types), if any."""
-        problems = {k: v for k, v in self.skipped.counts.items() if not k.startswith("unused")}
+        """One warning listing the problems (not the ignored messages), if any."""
+        problems = self.skipped.counts
         if problems:
             logger.warning("%s: %s; first: %s", self.path,
                            ", ".join(f"{v}× {k}" for k, v in problems.items()),
                            "; ".join(self.skipped.examples[:3]))
+
+
+def require_regular_file(path: str) -> None:
+    """Refuse what is not a regular file before opening it: a FIFO or a device would block
+    or stream forever, a folder cannot be read as a log.
+
+    Raises:
+        InputError: missing, not a regular file, or not accessible.
+    """
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror or exc}", path) from None
+    if stat.S_ISDIR(mode):
+        raise InputError("is a folder, not a log file", path)
+    if not stat.S_ISREG(mode):
+        raise InputError("not a regular file (a FIFO, socket or device); bsslam reads files only", path)
+
+
+def checked_frames(items: Iterable[tuple[int, Frame]], limits: InputLimits, issues: InputIssues) -> Iterator[Frame]:
+    """The reader's frames after the odometry check: each ``(line, frame)`` passes
+    :class:`~bsslam.input_limits.OdometryGate`; an implausible or invalid pose is a problem
+    at ``line`` and the step is bridged (a bad first pose skips its scan).
+
+    Raises:
+        InputError: no frame at all came through (in both modes), naming the file and what
+            was skipped; or, when strict, the first bad pose.
+    """
+    gate = OdometryGate(limits)
+    count = 0
+    for line, frame in items:
+        pose, reason = gate.accept(frame.stamp, frame.odometry)
+        if reason is not None:
+            if pose is None:
+                issues.problem(f"{reason} (scan skipped)", line)
+                continue
+            issues.problem(f"{reason} (bridged)", line)
+        count += 1
+        yield Frame(frame.stamp, pose, frame.scan, frame.laser_offset)
+    if count == 0:
+        counts = issues.skipped.counts
+        why = ("; skipped: " + ", ".join(f"{v}× {k}" for k, v in counts.items())) if counts else ""
+        raise InputError(f"no laser scans{why}", issues.path)

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from bsslam.errors import ConfigError
+from bsslam.input_limits import InputLimits
 
 # CARMEN laser messages a reader can turn into frames, best first: ROBOTLASER1 carries its
 # own beam angles and both the laser and the robot pose; FLASER the odometry pose; RAWLASER1
@@ -49,6 +50,9 @@ class ReaderConfig:
         tf_odom_frame: ROS: parent frame of the odometry transform in ``/tf``.
         tf_base_frame: ROS: child (robot) frame of that transform; None takes the first
             child of ``tf_odom_frame`` seen.
+        limits: physical limits every scan and odometry pose is checked against (beams
+            per scan, plausible speed and turn rate, coordinate range; see
+            :class:`~bsslam.input_limits.InputLimits`).
     """
 
     no_return_m: float = 80.0
@@ -59,6 +63,7 @@ class ReaderConfig:
     laser_message: str | None = None
     tf_odom_frame: str = "odom"
     tf_base_frame: str | None = None
+    limits: InputLimits = InputLimits()
 
     def __post_init__(self) -> None:
         if not self.no_return_m > 0:
@@ -69,5 +74,7 @@ class ReaderConfig:
             raise ConfigError(f"code_min_share must be in (0, 1], got {self.code_min_share}")
         if self.code_detection_scans < 1:
             raise ConfigError(f"code_detection_scans must be ≥ 1, got {self.code_detection_scans}")
+        if not isinstance(self.limits, InputLimits):
+            raise ConfigError(f"limits must be an InputLimits, got {type(self.limits).__name__}")
         if self.laser_message is not None and self.laser_message not in CARMEN_LASER_MESSAGES:
             raise ConfigError(f"laser_message must be one of {CARMEN_LASER_MESSAGES}, got {self.laser_message!r}")

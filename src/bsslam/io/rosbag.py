@@ -15,10 +15,18 @@ Laser offset: the laser frame's pose in the robot (odometry child) frame, compos
 ``/tf_static`` when it links them; zero otherwise. Stamps are header stamps (the bag's
 receive time when a header stamp is zero).
 
+Validation (once, here, with :mod:`bsslam.input_limits` and ``ReaderConfig.limits``): a
+scan's header must give finite angles, a non-zero ``angle_increment`` consistent with
+``angle_max`` and at most ``max_beams`` beams; negative ranges become NaN; odometry poses
+must be finite, within ``max_coordinate_m`` and move at a plausible speed (an implausible
+step is bridged, see :class:`~bsslam.input_limits.OdometryGate`).
+
 Scans before the first or after the last odometry are skipped and counted. Bad input (an
-undecodable message, an empty scan, a duplicate or backwards stamp, a bag that cannot be
-read to its end) is counted in ``skipped`` by default and raises ``InputError`` with
-``strict=True``; the "line" of an error is the message's index in the stream.
+undecodable message, an invalid scan header, a duplicate or backwards stamp, an invalid
+odometry pose, a bag that cannot be read to its end) is counted in ``skipped`` by default
+and raises ``InputError`` with ``strict=True``; the "line" of an error is the message's
+index in the stream (the scan and odometry topics together). A bag without one usable
+scan raises ``InputError`` in both modes.
 """
 
 from __future__ import annotations
@@ -44,7 +52,8 @@ except ImportError as exc:
 
 from bsslam.dataset import Frame, SkipCounter
 from bsslam.errors import InputError
-from bsslam.io.input_issues import InputIssues
+from bsslam.input_limits import beam_geometry_problem, invalid_ranges, pose_problem
+from bsslam.io.input_issues import InputIssues, checked_frames, require_regular_file
 from bsslam.io.no_return import mark_no_return, no_return_threshold
 from bsslam.io.odometry_sync import OdometrySync
 from bsslam.io.quaternion import yaw_from_quaternion
@@ -112,6 +121,8 @@ class RosbagReader:
         self.ground_truth = ground_truth
         self._issues = InputIssues(self.path, strict)
         self._is_ros1 = Path(self.path).suffix == ".bag"
+        if Path(self.path).exists() and not Path(self.path).is_dir():
+            require_regular_file(self.path)   # a FIFO would block the bag reader
         with self._open() as reader:
             topics = {c.topic: c.msgtype for c in reader.connections}
         self.scan_topic, self.odom_topic, self.odometry_from_tf = self._choose_topics(topics, scan_topic, odom_topic)
@@ -167,6 +178,11 @@ class RosbagReader:
 
     def __iter__(self) -> Iterator[Frame]:
         self._issues = InputIssues(self.path, self.strict)
+        yield from checked_frames(self._numbered_frames(), self.config.limits, self._issues)
+        self._issues.log_summary(logger)
+
+    def _numbered_frames(self) -> Iterator[tuple[int, Frame]]:
+        """(message index, frame) of every scan that passed the message-level checks."""
         sync = OdometrySync()
         last_scan = last_odometry = None
         base_frame = self.config.tf_base_frame
@@ -198,18 +214,25 @@ class RosbagReader:
                 else:
                     for stamp, pose, child in self._odometry(msg, bag_ns, base_frame):
                         base_frame = base_frame or child
+                        reason = pose_problem(pose, self.config.limits)
+                        if reason is not None:
+                            self._issues.problem(f"{reason} in {connection.topic}", index)
+                            continue
                         if self._issues.stamp_advances(stamp, last_odometry, "odometry", index):
                             last_odometry = stamp
                             sync.add_odometry(stamp, pose)
                 yield from self._release(sync, False, statics, base_frame, offsets)
             yield from self._release(sync, True, statics, base_frame, offsets)
-        self._issues.log_summary(logger)
 
     def _scan(self, msg: Any, bag_ns: int, index: int) -> LaserScan | None:
         ranges = np.asarray(msg.ranges, dtype=float)
-        if ranges.size == 0:
-            self._issues.problem("empty scan", index)
+        reason = beam_geometry_problem(ranges.size, float(msg.angle_min), float(msg.angle_increment),
+                                       self.config.limits, end_rad=float(msg.angle_max))
+        if reason is not None:
+            self._issues.problem(reason, index, f"{self.scan_topic}: {ranges.size} beams, angle_min "
+                                 f"{msg.angle_min}, angle_increment {msg.angle_increment}, angle_max {msg.angle_max}")
             return None
+        ranges, _, _ = invalid_ranges(ranges)   # negative → NaN; NaN is a failed beam (REP 117)
         angles = float(msg.angle_min) + float(msg.angle_increment) * np.arange(ranges.size)
         if msg.angle_increment < 0:  # a laser mounted upside down: keep bearings increasing
             angles, ranges = angles[::-1], ranges[::-1]
@@ -265,7 +288,7 @@ class RosbagReader:
             return np.zeros(3)
         return offset
 
-    def _release(self, sync: OdometrySync, final: bool, statics, base_frame, offsets) -> Iterator[Frame]:
+    def _release(self, sync: OdometrySync, final: bool, statics, base_frame, offsets) -> Iterator[tuple[int, Frame]]:
         for (index, scan, laser_frame), pose, reason in sync.ready(final):
             if pose is None:
                 # expected at the edges of a recording, so counted even in strict mode
@@ -273,4 +296,4 @@ class RosbagReader:
                 continue
             if laser_frame not in offsets:
                 offsets[laser_frame] = self._laser_offset(laser_frame, base_frame, statics)
-            yield Frame(scan.stamp, pose, scan, offsets[laser_frame].copy())
+            yield index, Frame(scan.stamp, pose, scan, offsets[laser_frame].copy())

@@ -19,6 +19,10 @@ class LaserScan:
         ranges: (n,) measured ranges (m); NaN/inf/no-return values are allowed here and
             removed by :func:`bsslam.scan.valid_beams`.
         max_range: the sensor's maximum range (m); ranges ≥ it mean "no return".
+
+    The constructor checks shapes and finiteness only; the physical limits (beam count,
+    increasing bearings, ranges) are :mod:`bsslam.input_limits`' checks, which the readers
+    apply and API callers can apply to their own scans.
     """
 
     stamp: float
@@ -33,8 +37,10 @@ class LaserScan:
             raise InputError(f"scan angles {angles.shape} and ranges {ranges.shape} must be equal 1-D arrays")
         if not np.all(np.isfinite(angles)):
             raise InputError("scan angles must be finite")
-        if not (self.max_range > 0):
-            raise InputError(f"scan max_range must be > 0, got {self.max_range}")
+        if not (self.max_range > 0 and np.isfinite(self.max_range)):
+            raise InputError(f"scan max_range must be finite and > 0, got {self.max_range}")
+        if not np.isfinite(self.stamp):
+            raise InputError(f"scan stamp must be finite, got {self.stamp}")
         object.__setattr__(self, "angles", angles)
         object.__setattr__(self, "ranges", ranges)
 
