@@ -251,3 +251,49 @@ def test_the_viewer_sees_every_scan_and_the_result(data, config, full_run):
     np.testing.assert_array_equal([e.pose for e, _ in viewer.updates], result.estimate.poses)
     assert viewer.map_sizes[-1] == len(result.map) > 0
     assert_same_run(result, full_run)        # watching changes nothing
+
+
+def test_add_checks_its_input_at_the_boundary(data, config):
+    """The public API applies the readers' limits: an odometry jump beyond the plausible
+    speed is bridged and counted (an InputError when strict), the run stays within the
+    scans' own motion of the clean one; bad bearings and backward stamps are InputErrors."""
+    frames = list(data)[:12]
+    jump = np.array([100.0, 0.0, 0.0])     # 100 m in one step: no ground robot does that
+    jumped = [f.odometry + (jump if i == 6 else 0.0) for i, f in enumerate(frames)]
+
+    mapper = Mapper(config)
+    for f, odo in zip(frames, jumped):
+        mapper.add(f.scan, odo, f.stamp, f.laser_offset)
+    result = mapper.finish()
+    assert sum(result.skipped.counts.values()) >= 1
+    assert all("implausible" in k for k in result.skipped.counts)
+    clean = run_dataset(frames_dataset(frames), config)
+    # the bridged step repeats the previous velocity; the scans then correct it
+    assert np.max(np.hypot(*(result.estimate.poses - clean.estimate.poses)[:, :2].T)) < 1.0
+
+    strict = Mapper(config, strict=True)
+    with pytest.raises(InputError, match="implausible"):
+        for f, odo in zip(frames, jumped):
+            strict.add(f.scan, odo, f.stamp, f.laser_offset)
+
+    bad = Mapper(config)
+    f0 = frames[0]
+    with pytest.raises(InputError, match="angle"):
+        bad.add(dataclasses.replace(f0.scan, angles=np.zeros_like(f0.scan.angles)), f0.odometry, f0.stamp)
+    bad.add(f0.scan, f0.odometry, f0.stamp)
+    with pytest.raises(InputError, match="not after"):
+        bad.add(frames[1].scan, frames[1].odometry, f0.stamp - 1.0)
+
+
+class frames_dataset:
+    """A Dataset over a list of frames."""
+
+    name = "frames"
+    ground_truth = None
+
+    def __init__(self, frames):
+        from bsslam.dataset import SkipCounter
+        self.frames, self.skipped = frames, SkipCounter()
+
+    def __iter__(self):
+        return iter(self.frames)

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bsslam.errors import ConfigError
+from bsslam.se2 import between, compose, inverse
 
 # Bearings of one scan may cover at most a full turn; this slack allows a 360-beam scan
 # whose first and last beam coincide and float round-off in the header.
@@ -181,17 +182,6 @@ def increment_problem(delta, dt_s: float | None, limits: InputLimits) -> str | N
     return None
 
 
-def _between(a, b) -> tuple[float, float, float]:
-    """Pose of ``b`` in the frame of ``a`` (both finite (3,) poses), heading wrapped."""
-    c, s = math.cos(a[2]), math.sin(a[2])
-    dx, dy = b[0] - a[0], b[1] - a[1]
-    return (c * dx + s * dy, -s * dx + c * dy, wrap(b[2] - a[2]))
-
-
-def _compose(a, b) -> tuple[float, float, float]:
-    c, s = math.cos(a[2]), math.sin(a[2])
-    return (a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], wrap(a[2] + b[2]))
-
 
 class OdometryGate:
     """Checks a stream of odometry poses and bridges the implausible steps.
@@ -228,12 +218,12 @@ class OdometryGate:
             previous, previous_stamp = self._raw, self._raw_stamp
             self._raw, self._raw_stamp = raw, stamp   # re-anchored here even when implausible
             if previous is not None:
-                delta = _between(previous, raw)
+                delta = between(previous, raw)
                 reason = increment_problem(delta, stamp - previous_stamp, self.limits)
             if reason is None:
                 if previous is not None:
-                    self._last_increment, self._last_dt = delta, max(stamp - previous_stamp, self.limits.min_dt_s)
-                self._out = raw if self._correction is None else _compose(self._correction, raw)
+                    self._last_increment, self._last_dt = tuple(delta), max(stamp - previous_stamp, self.limits.min_dt_s)
+                self._out = raw if self._correction is None else tuple(compose(self._correction, raw))
                 self._out_stamp = stamp
                 return np.array(self._out), None
         if self._out is None:
@@ -242,14 +232,9 @@ class OdometryGate:
         # previous step long (no extrapolation over a gap)
         dt = max(stamp - self._out_stamp, self.limits.min_dt_s)
         scale = min(1.0, dt / self._last_dt)
-        self._out = _compose(self._out, tuple(scale * v for v in self._last_increment))
+        self._out = tuple(compose(self._out, scale * np.asarray(self._last_increment)))
         self._out_stamp = stamp
         if raw is not None:
             # later increments are measured from this raw pose
-            self._correction = _compose(self._out, _inverse(raw))
+            self._correction = tuple(compose(self._out, inverse(raw)))
         return np.array(self._out), reason
-
-
-def _inverse(a) -> tuple[float, float, float]:
-    c, s = math.cos(a[2]), math.sin(a[2])
-    return (-c * a[0] - s * a[1], s * a[0] - c * a[1], wrap(-a[2]))

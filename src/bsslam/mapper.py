@@ -19,6 +19,7 @@ so the loop never branches on "visualise?".
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 from dataclasses import dataclass, field
@@ -31,6 +32,7 @@ from bsslam.config import SLAMConfig
 from bsslam.dataset import Frame, SkipCounter
 from bsslam.errors import InputError
 from bsslam.frontend import LaserOdometry, UpdateSchedule
+from bsslam.input_limits import InputLimits, OdometryGate, angles_problem, invalid_ranges, offset_problem
 from bsslam.scan import LaserScan
 from bsslam.se2 import between, compose, compose_with_covariance
 from bsslam.slam import MapSpline, SplineSLAM
@@ -240,10 +242,15 @@ class Mapper:
             :class:`bsslam.viz.rerun_viewer.RerunViewer`); a no-op by default.
         slam: an existing filter to continue instead of a new one (its state is not reset;
             ``initial_pose`` is then ignored).
+        limits: the physical limits :meth:`add` checks scans and odometry against (the
+            readers' defaults: :class:`~bsslam.input_limits.InputLimits`).
+        strict: an implausible odometry step raises InputError instead of being bridged
+            and counted in :attr:`skipped`.
     """
 
     def __init__(self, config: SLAMConfig | None = None, initial_pose=None, viewer: Viewer | None = None,
-                 *, slam: SplineSLAM | None = None) -> None:
+                 *, slam: SplineSLAM | None = None, limits: InputLimits | None = None,
+                 strict: bool = False) -> None:
         self.config = config or SLAMConfig()
         self.viewer = viewer if viewer is not None else NullViewer()
         self._initial_pose = None if initial_pose is None else _pose(initial_pose, "initial_pose")
@@ -252,6 +259,11 @@ class Mapper:
         self._records: list[_Record] = []
         self._first: tuple[np.ndarray, np.ndarray] | None = None   # the first pose and covariance
         self._odometry: np.ndarray | None = None    # the last odometry pose
+        self.limits = limits if limits is not None else InputLimits()
+        self.strict = strict
+        self.skipped = SkipCounter()   # what add() bridged, by reason
+        self._gate = OdometryGate(self.limits)
+        self._last_stamp: float | None = None
 
     # -- views --------------------------------------------------------------------------
     @property
@@ -301,7 +313,34 @@ class Mapper:
         odometry = self._odometry_pose(odometry, odometry_increment)
         stamp = float(scan.stamp if stamp is None else stamp)
         offset = np.zeros(3) if laser_offset is None else _pose(laser_offset, "laser_offset")
-        frame = Frame(stamp, odometry, scan, offset)
+        return self.add_frame(self._checked(Frame(stamp, odometry, scan, offset)))
+
+    def _checked(self, frame: Frame) -> Frame:
+        """The public API's boundary: the same physical limits as the log readers
+        (:mod:`bsslam.input_limits`). A bad scan or laser offset is an InputError; an
+        implausible odometry step is bridged (see :class:`~bsslam.input_limits.OdometryGate`)
+        and counted in :attr:`skipped`, or an InputError when ``strict``."""
+        limits = self.limits
+        scan = frame.scan
+        problem = angles_problem(scan.angles, limits) or offset_problem(frame.laser_offset, limits)
+        if problem is not None:
+            raise InputError(f"Mapper.add: scan at {frame.stamp}: {problem}")
+        if self._last_stamp is not None and not frame.stamp > self._last_stamp:
+            raise InputError(f"Mapper.add: stamp {frame.stamp} is not after the previous scan's {self._last_stamp}")
+        odometry, problem = self._gate.accept(frame.stamp, frame.odometry)
+        if problem is not None:
+            if self.strict or odometry is None:
+                raise InputError(f"Mapper.add: scan at {frame.stamp}: {problem}")
+            self.skipped.add(problem, f"scan at {frame.stamp}")
+        self._last_stamp = frame.stamp
+        ranges, _, _ = invalid_ranges(scan.ranges)   # negative → NaN (a failed beam)
+        return Frame(frame.stamp, odometry, dataclasses.replace(scan, ranges=ranges), frame.laser_offset)
+
+    def add_frame(self, frame: Frame) -> PoseEstimate:
+        """:meth:`add` for a frame a reader has already checked against the input limits
+        (every :class:`~bsslam.dataset.Dataset` of :mod:`bsslam.io` and the simulator):
+        the checks run once, at the boundary where the data entered."""
+        scan, odometry, offset = frame.scan, frame.odometry, frame.laser_offset
         with _one_blas_thread():
             record = self._step(frame)
         self._records.append(record)      # the scan is recorded whole, or not at all
@@ -354,7 +393,7 @@ class Mapper:
         ``config.relocalize`` is on. Call it once, at the end.
 
         Args:
-            name, ground_truth, skipped: the data source's, copied into the result.
+            name, ground_truth, skipped: the data source's, copied into the result (skipped: by default what :meth:`add` bridged).
             point_stride: keep every k-th valid beam of every scan for ``RunResult.points``
                 (0: none).
             progress: progress of the second pass (done, total scans).
@@ -396,7 +435,7 @@ class Mapper:
             totals=totals, nis=np.array([r.nis for r in records]),
             nis_dof=np.array([r.nis_dof for r in records], dtype=int),
             points=np.vstack(points) if points else np.empty((0, 2)),
-            skipped=skipped if skipped is not None else SkipCounter(),
+            skipped=skipped if skipped is not None else self.skipped,
             scans=[(r.scan, r.laser_offset) for r in records], interrupted=interrupted,
         )
         self.viewer.finish(result)

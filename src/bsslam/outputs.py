@@ -56,6 +56,7 @@ def summarize(result: RunResult, reference: Trajectory | None = None, exact_refe
         **{k: int(v) for k, v in sorted(result.totals.items())},
         "skipped_input": int(result.skipped.total),
         "skipped_input_by_reason": dict(result.skipped.counts),
+        "ignored_input": dict(result.skipped.ignored),   # message types the reader does not use
     }
     if ref is not None and len(ref) and result.steps:
         rmse, matched, _ = ate(est, ref)

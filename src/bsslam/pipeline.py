@@ -42,7 +42,7 @@ def run_dataset(dataset: Dataset, config: SLAMConfig, *, steps: int | None = Non
         for i, frame in enumerate(dataset):
             if steps is not None and i >= steps:
                 break
-            mapper.add(frame.scan, frame.odometry, frame.stamp, frame.laser_offset)
+            mapper.add_frame(frame)   # a Dataset checked its frames against the input limits
             progress(i + 1, total)
     except KeyboardInterrupt:
         interrupted = True

@@ -18,6 +18,7 @@ import numpy as np
 from bsslam.config import SLAMConfig
 from bsslam.errors import ConfigError
 from bsslam.eval import RunErrors, chi2_band, pose_errors
+from bsslam.io.atomic_file import atomic_write
 from bsslam.pipeline import run_dataset
 from bsslam.parallel import run_all
 from bsslam.sim import SimConfig, get_world, simulate
@@ -130,12 +131,12 @@ def write_consistency(result: ConsistencyResult, run_dir: Path) -> list[Path]:
 
     run_dir = Path(run_dir)
     paths = [run_dir / "nees.csv", run_dir / "errors.csv", run_dir / "nees.png", run_dir / "errors.png"]
-    with open(paths[0], "w", newline="") as fh:
+    with atomic_write(paths[0], "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["step", "mean_nees", "lower", "upper"])
         for k, v in zip(result.steps, result.mean_nees):
             w.writerow([k, f"{v:.6g}", f"{result.lower:.6g}", f"{result.upper:.6g}"])
-    with open(paths[1], "w", newline="") as fh:
+    with atomic_write(paths[1], "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["step", "mean_err_x_m", "mean_err_y_m", "mean_err_phi_rad",
                     "mean_sigma_x_m", "mean_sigma_y_m", "mean_sigma_phi_rad"])

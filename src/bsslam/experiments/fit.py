@@ -32,6 +32,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from bsslam.errors import ConfigError, FitError
+from bsslam.io.atomic_file import atomic_write
 from bsslam.spline import BSplineCurve, FitResult, fit_curve, intersect_rays
 
 #: The curved wall of the paper's eq. (12): z(φ) = base + amplitude·sin(frequency·φ) (m).
@@ -203,7 +204,7 @@ def _write(results, header: tuple[str, str], stem: Path, example: FitExample, ki
     from bsslam.viz.fit_plots import plot_fit_example, plot_mse_vs_order, plot_mse_vs_spacing
 
     csv_path, png_path = stem.with_suffix(".csv"), stem.with_suffix(".png")
-    with open(csv_path, "w", newline="") as fh:
+    with atomic_write(csv_path, "w", newline="") as fh:
         writer = csv.writer(fh)
         writer.writerow(header)
         for x, mse in results:

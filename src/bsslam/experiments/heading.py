@@ -17,6 +17,7 @@ import numpy as np
 
 from bsslam.config import SLAMConfig
 from bsslam.experiments.consistency import simulation_config
+from bsslam.io.atomic_file import atomic_write
 from bsslam.parallel import run_all
 from bsslam.sim import SimConfig, get_world, simulate
 from bsslam.slam import SplineSLAM
@@ -62,7 +63,7 @@ def write_heading_gain(result: dict[float, np.ndarray], run_dir: Path) -> list[P
 
     run_dir = Path(run_dir)
     csv_path, png_path = run_dir / "heading_sigma.csv", run_dir / "heading_sigma.png"
-    with open(csv_path, "w", newline="") as fh:
+    with atomic_write(csv_path, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["update", "sigma0_rad", "mean_sigma_phi_rad"])
         for s0, sig in result.items():
