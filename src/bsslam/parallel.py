@@ -18,6 +18,7 @@ serial loop with a one-line warning in the log; asking for a scheduler is an err
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import os
 from typing import Callable, Sequence, TypeVar
@@ -30,6 +31,8 @@ Progress = Callable[[int, int], None]
 logger = logging.getLogger(__name__)
 
 DASK_EXTRA_HINT = "pip install 'bsslam[dask]'"
+#: How long a local worker may take to close before it is killed (s).
+WORKER_CLOSE_TIMEOUT_S = 30.0
 
 
 def run_all(
@@ -84,7 +87,16 @@ def run_all(
     # 8787 is taken by a second cluster on the machine, with a warning.
     with distributed.LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
                                   dashboard_address=":0") as cluster, distributed.Client(cluster) as client:
-        return _run_on(client, fn, items, progress)
+        results = _run_on(client, fn, items, progress)
+        # A worker holding numba's compiled code takes seconds to exit, more on a busy
+        # machine: longer than the 4 s the cluster's own close waits before it kills the
+        # process with a warning. Closed here first, with time to spare.
+        cluster.sync(_close_workers, cluster, WORKER_CLOSE_TIMEOUT_S)
+        return results
+
+
+async def _close_workers(cluster, timeout_s: float) -> None:
+    await asyncio.gather(*(worker.close(timeout=timeout_s) for worker in cluster.workers.values()))
 
 
 def _run_serially(fn: Callable[[object], T], items: list, progress: Progress | None) -> list[T]:

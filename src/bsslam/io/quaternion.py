@@ -8,7 +8,9 @@ import numpy as np
 def yaw_from_quaternion(qx, qy, qz, qw):
     """Heading (rad, in (−π, π]) of quaternion(s): the rotation about z, i.e. the ZYX yaw.
     Valid for any, also non-planar or unnormalised, quaternion. Accepts scalars or arrays."""
-    return np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+    # w² + x² − y² − z² is 1 − 2(y² + z²) for a unit quaternion; unlike the latter it scales
+    # with |q|² as the numerator does, so the angle does not depend on the norm.
+    return np.arctan2(2.0 * (qw * qz + qx * qy), qw * qw + qx * qx - qy * qy - qz * qz)
 
 
 def quaternion_from_yaw(yaw) -> np.ndarray:
