@@ -32,6 +32,9 @@ from bsslam.io.map_file import read_map_json
 from bsslam.io.trajectory_file import read_trajectory
 from bsslam.spline import BSplineCurve
 
+# map_server's classes of a cell
+OCCUPIED_CLASS, FREE_CLASS, UNKNOWN_CLASS = 1, 0, -1
+
 
 def _cells(xy: np.ndarray, origin, resolution: float, height: int) -> tuple[np.ndarray, np.ndarray]:
     col = np.floor((xy[:, 0] - origin[0]) / resolution).astype(int)
@@ -47,9 +50,6 @@ def _written_classes(run_dir: Path):
     classes[p > meta["occupied_thresh"]] = OCCUPIED_CLASS
     classes[p < meta["free_thresh"]] = FREE_CLASS
     return classes, meta["origin"], meta["resolution"]
-
-
-OCCUPIED_CLASS, FREE_CLASS, UNKNOWN_CLASS = 1, 0, -1
 
 
 def main() -> None:

@@ -271,3 +271,28 @@ def test_a_simulated_run_puts_its_poses_on_free_cells_and_the_true_walls_on_occu
     pose_error = np.max(np.hypot(*(result.trajectory.poses[:, :2] - data.ground_truth.poses[:, :2]).T))
     reach = int(np.ceil(pose_error / resolution)) + 1
     assert np.mean(_within(classes, r, c, reach, 1)) > 0.98
+
+
+DATA = Path(__file__).resolve().parents[2] / ".." / "shared" / "data"
+INTEL = DATA / "intel" / "intel-noisy.clf"
+
+
+@pytest.mark.skipif(not INTEL.exists(), reason=f"shared data not found at {INTEL}")
+def test_a_real_log_grid_is_navigable(tmp_path):
+    """The first 100 scans of the Intel lab: every pose on a free cell of the files, and
+    the splines (left out of the grid here) on the scans' occupied cells, within a cell."""
+    from bsslam.io import open_dataset
+    from bsslam.pipeline import run_dataset
+
+    config = SLAMConfig()
+    result = run_dataset(open_dataset(INTEL), config, steps=100, point_stride=0)
+    grid = build_occupancy_grid(result.scans, result.trajectory.poses, config.grid)
+    image = grid.image(config.grid.occupied_thresh, config.grid.free_thresh)
+    write_grid(tmp_path / "grid.pgm", tmp_path / "grid.yaml", image, grid.origin, grid.resolution_m)
+    classes, origin, resolution = load_map_server(tmp_path / "grid.yaml")
+    h = classes.shape[0]
+    r, c = cells_of(result.trajectory.poses[:, :2], origin, resolution, h)
+    assert np.all(classes[r, c] == 0)
+    points = np.vstack([m.curve.evaluate(np.linspace(*m.curve.domain, 100)) for m in result.map])
+    r, c = cells_of(points, origin, resolution, h)
+    assert np.mean(_within(classes, r, c, 1, 1)) > 0.9, np.mean(_within(classes, r, c, 1, 1))
