@@ -18,17 +18,17 @@ from bsslam.scan import LaserScan, ObservedSpline, ScanFeatures, extract_splines
 from bsslam.scan.refine import refine_for_map
 from bsslam.slam import beam_kernels, range_kernels
 from bsslam.slam.association import Match, associate_curves, association_thresholds
-from bsslam.slam.ekf import CovarianceColumns, StackedGain, gate_threshold, innovation_variances
+from bsslam.slam.ekf import gate_threshold
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
 from bsslam.slam.features import MapSpline, SplineFeature
 from bsslam.slam.kernels import association_frame
 from bsslam.slam.map_curves import MapCurves
-from bsslam.slam.motion import motion_noise, predict_state
+from bsslam.slam.estimator import CompressedEKF, Estimator
+from bsslam.slam.motion import motion_noise
 from bsslam.slam.observation import laser_pose, linearize_beams
-from bsslam.slam.state import POSE, JointState
+from bsslam.slam.state import POSE
 from bsslam.spline import FitResult, extend_curve, fit_curve
 from bsslam.spline.batch import CurveTable, closest_points_batch, curve_table
-from bsslam.trajectory import wrap_angle
 
 
 @dataclass
@@ -120,11 +120,14 @@ class SplineSLAM:
     """
 
     def __init__(self, config: SLAMConfig | None = None, initial_pose=(0.0, 0.0, 0.0),
-                 initial_covariance: np.ndarray | None = None):
+                 initial_covariance: np.ndarray | None = None, estimator=CompressedEKF):
+        """``estimator``: the class of the joint Gaussian (an :class:`Estimator`, built from
+        the initial pose (3,) and its covariance (3, 3))."""
         self.config = config or SLAMConfig()
         if initial_covariance is None:
             initial_covariance = np.diag(np.square(self.config.initial_pose_sigma))
-        self.state = JointState(np.asarray(initial_pose, dtype=float), np.asarray(initial_covariance, dtype=float))
+        self.state: Estimator = estimator(np.asarray(initial_pose, dtype=float),
+                                          np.asarray(initial_covariance, dtype=float))
         self.features: dict[int, SplineFeature] = {}
         self.steps = 0
         self._next_id = 0
@@ -217,7 +220,7 @@ class SplineSLAM:
                 Q = np.asarray(odometry_covariance, dtype=float)
                 if Q.shape != (3, 3) or not np.all(np.isfinite(Q)) or np.any(np.linalg.eigvalsh(0.5 * (Q + Q.T)) < 0):
                     raise InputError(f"odometry covariance must be a 3×3 positive semi-definite matrix, got {Q!r}")
-            predict_state(self.state, delta, Q)
+            self.state.predict(delta, Q)
         observed = self._observe(scan, report, features)
         matches = self._associate(observed, offset)
         self._update(observed, matches, offset, report)
@@ -398,20 +401,20 @@ class SplineSLAM:
         # the entries a relinearisation reads: the pose and the beams' splines (the subsets
         # selected below keep to these curves); the rest of the state is corrected once, at the end
         work = np.concatenate([POSE, mc.state_indices(beams.used_curves, self.state.size)])
-        columns = CovarianceColumns(self.state, work)   # P[work, cols], without folding the pending update
-        s_diag = innovation_variances(columns, lin.cols, lin.H_c, R)
+        window = self.state.window(work)
+        s_diag = window.innovation_variances(lin.cols, lin.H_c, R)
         coarse = lin.residual ** 2 <= self._loose_gate * s_diag
         report.drop("gate", int((~coarse).sum()))
         if not coarse.any():
             return
         beams, lin = self._select(beams, lin, coarse)
-        gain = StackedGain(columns, lin.cols, lin.H_c, R)
+        gain = window.gain(lin.cols, lin.H_c, R)
         x_i = x0.copy()
         x_i[work] += gain.correction(lin.residual)[0]
         lin = self._linearize(beams, x_i, offset, None)
         if lin is None:
             return
-        fine = lin.residual ** 2 <= self._gate * gain.posterior_variances(columns, lin.cols, lin.H_c, R)
+        fine = lin.residual ** 2 <= self._gate * gain.posterior_variances(lin.cols, lin.H_c, R)
         report.drop("gate", int((~fine).sum()))
         if not fine.any():
             return
@@ -424,10 +427,10 @@ class SplineSLAM:
                 if lin is None:
                     return
                 beams, lin = self._select(beams, lin, np.ones(lin.residual.shape[0], dtype=bool))
-            gain = StackedGain(columns, lin.cols, lin.H_c, R)
+            gain = window.gain(lin.cols, lin.H_c, R)
             # IEKF: ν_i = z − h(x_i) − H_i (x₀ − x_i)
             nu = lin.residual - lin.H_c @ (x0[lin.cols] - x_i[lin.cols])
-            dx, nis = gain.correction(nu)
+            dx, _ = gain.correction(nu)
             x_new = x0.copy()
             x_new[work] += dx
             step = np.abs(x_new[:3] - x_i[:3])
@@ -437,14 +440,12 @@ class SplineSLAM:
             # hundredths of σ, and every further iteration costs a linearisation and a gain
             if np.all(step <= tolerance * np.sqrt(gain.pose_variances(prior_pose_var))):
                 break
-        self.state.x[:] = x0 + gain.state_correction(nu)
-        gain.update_covariance(self.state)
-        self.state.x[2] = wrap_angle(self.state.x[2])
+        innovation = self.state.update(lin.cols, lin.H_c, nu, R, gain)
         for c in beams.used_curves:
             mc.features[c].observations += 1
         report.innovations = np.concatenate([report.innovations, nu])
-        report.innovation_variances = np.concatenate([report.innovation_variances, gain.S_diag])
-        report.nis += nis
+        report.innovation_variances = np.concatenate([report.innovation_variances, innovation.variances])
+        report.nis += innovation.nis
         report.nis_dof += int(nu.shape[0])
         report.beams_used = report.nis_dof
 
@@ -506,7 +507,7 @@ class SplineSLAM:
         if cfg.mode == "localization":
             feature.fixed_control_points = block.mean.reshape(2, n).T.copy()
         else:
-            idx = self.state.append_dependent(block.mean, block.cols, block.J, block.noise(self._range_variance))
+            idx = self.state.append(block.mean, block.cols, block.J, block.noise(self._range_variance))
             feature.idx_x, feature.idx_y = idx[:n], idx[n:]
         self.features[feature.id] = feature
         self._unconfirmed.append(feature.id)
@@ -540,7 +541,7 @@ class SplineSLAM:
             self._map_extended(f, fitted.table)
             return True
         block = extension_block(new_rows, n_old, f.idx_x, f.idx_y, curve.control_points, bp)
-        new_idx = self.state.append_dependent(block.mean, block.cols, block.J, block.noise(self._range_variance))
+        new_idx = self.state.append(block.mean, block.cols, block.J, block.noise(self._range_variance))
         self.state.transform(f.idx_x, ext.T)    # x[idx] ← T x[idx], P ← T P Tᵀ on that block
         self.state.transform(f.idx_y, ext.T)
         new_x, new_y = new_idx[:m], new_idx[m:]
