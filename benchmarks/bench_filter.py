@@ -53,6 +53,7 @@ from bsslam.sim.geometry import WallSet, rounded_rectangle_walls  # noqa: E402
 from bsslam.sim.paths import rounded_rectangle_loop  # noqa: E402
 from bsslam.sim.worlds import World  # noqa: E402
 from bsslam.slam import SplineSLAM  # noqa: E402
+from bsslam.slam.measurement import RangeModel  # noqa: E402
 from bsslam.slam.state import JointState, _subtract_outer  # noqa: E402
 
 BINS = [0, 250, 500, 750, 1000, 1250, 1500, 2000, 3000, 10**9]
@@ -71,7 +72,7 @@ STAGES = {
     "predict": [(estimator_module.CompressedEKF, "predict")],
     "segment+fit": [(SplineSLAM, "_observe")],
     "associate": [(SplineSLAM, "_associate")],
-    "linearise": [(SplineSLAM, "_linearize")],
+    "linearise": [(RangeModel, "linearize")],
     "covariance reads": [(JointState, "block"), (JointState, "diagonal"), (JointState, "rows"),
                          (JointState, "columns_times")],
     "S/gain": [(ekf_module.StackedGain, "__init__"), (ekf_module.StackedGain, "correction"),

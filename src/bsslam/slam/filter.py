@@ -6,8 +6,6 @@ predict → segment and fit → associate → update → extend / add.
 
 from __future__ import annotations
 
-import functools
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,16 +14,15 @@ from bsslam.config import SLAMConfig
 from bsslam.errors import FilterError, FitError, InputError
 from bsslam.scan import LaserScan, ObservedSpline, ScanFeatures, extract_splines
 from bsslam.scan.refine import refine_for_map
-from bsslam.slam import beam_kernels, range_kernels
 from bsslam.slam.association import Match, associate_curves, association_thresholds
 from bsslam.slam.ekf import gate_threshold
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
 from bsslam.slam.features import MapSpline, SplineFeature
-from bsslam.slam.kernels import association_frame
 from bsslam.slam.map_curves import MapCurves
+from bsslam.slam.measurement import RangeModel
 from bsslam.slam.estimator import CompressedEKF, Estimator
 from bsslam.slam.motion import motion_noise
-from bsslam.slam.observation import laser_pose, linearize_beams
+from bsslam.slam.observation import laser_pose
 from bsslam.slam.state import POSE
 from bsslam.spline import FitResult, extend_curve, fit_curve
 from bsslam.spline.batch import CurveTable, closest_points_batch, curve_table
@@ -73,44 +70,6 @@ class StepReport:
             self.beams_dropped[reason] = self.beams_dropped.get(reason, 0) + int(count)
 
 
-@dataclass(frozen=True)
-class _Linearization:
-    """Stacked ranges and Jacobian of the beams of one scan at one estimate.
-
-    Attributes:
-        cols: (c,) touched state indices; H_c: (m, c); residual: (m,) z − h(x) (m);
-        beam: (m,) the beam (index into the linearised :class:`_Beams`) of each row;
-        hit_t: (m,) map-spline parameter of each hit (m).
-    """
-
-    cols: np.ndarray
-    H_c: np.ndarray
-    residual: np.ndarray
-    beam: np.ndarray
-    hit_t: np.ndarray
-
-
-@dataclass(frozen=True, eq=False)
-class _Beams:
-    """The beams of one scan assigned to map splines, each (k,).
-
-    Attributes:
-        curve: index of each beam's map spline in the filter's :class:`MapCurves` table.
-        bearings: robot-frame bearings (rad); ranges: measured ranges (m);
-        t0: Newton start on the map spline (m).
-    """
-
-    curve: np.ndarray
-    bearings: np.ndarray
-    ranges: np.ndarray
-    t0: np.ndarray
-
-    @functools.cached_property
-    def used_curves(self) -> np.ndarray:
-        """The distinct map splines of the beams (increasing)."""
-        return range_kernels.used_curves(self.curve)
-
-
 class SplineSLAM:
     """EKF-SLAM with B-spline features, usable from Python without the CLI.
 
@@ -138,6 +97,7 @@ class SplineSLAM:
         self._gate = gate_threshold(self.config.observation.gate_probability)
         self._loose_gate = gate_threshold(1.0 - (1.0 - self.config.observation.gate_probability) / 100.0)
         self._build_map = True
+        self.measurement = RangeModel(self.config.observation)
 
     @classmethod
     def in_fixed_map(cls, splines: list[MapSpline], config: SLAMConfig | None = None,
@@ -187,11 +147,6 @@ class SplineSLAM:
                 cov = np.zeros((2 * f.knots.size - 2 * f.degree - 2,) * 2)
             out.append(MapSpline(f.id, f.curve(x), cov))
         return out
-
-    @property
-    def _range_variance(self) -> float:
-        obs = self.config.observation
-        return (obs.sigma_range_m ** 2 + obs.sigma_model_m ** 2) * obs.r_inflation
 
     # -- the algorithm ------------------------------------------------------------------
     def step(self, odometry_delta, scan: LaserScan, laser_offset=None,
@@ -295,9 +250,8 @@ class SplineSLAM:
         # back carry the same error, and gates grown by it all reach their 1 m cap in the
         # ACES corridors.
         mt, cp = mc.table, mc.control_points(state.x)
-        candidates, near, J, map_coeffs_t, world_coeffs_t = association_frame(
-            cp, mt.cp_start, mt.power_basis, mt.window, mt.piece_start, mc.state_rows, world, table.cp_start,
-            table.power_basis, table.window, table.piece_start, lp, cfg.map_radius_m ** 2, pose)
+        candidates, near, J, map_coeffs_t, world_coeffs_t = mc.association_frame(
+            cp, world, table, lp, cfg.map_radius_m ** 2, pose)
         if candidates.size == 0:
             return [[] for _ in observed]
         fixed = near[:, 0] < 0
@@ -326,53 +280,6 @@ class SplineSLAM:
             for i, m in zip(lost, found):
                 matches[i] = m
 
-    def _beam_groups(self, observed: list[ObservedSpline], matches: list[list[Match]]) -> _Beams | None:
-        """The beams of the matched intervals, each with its map spline and Newton start;
-        a beam inside several matched intervals goes to the first (by ``u_ini``).
-
-        The matches and the matched splines' beams go to one compiled call
-        (:func:`beam_kernels.beam_groups`) as a table and one array: a loop over them here
-        was about a hundred numpy calls a scan."""
-        mc = self._map   # validated by the _associate that produced ``matches`` (None if there are none)
-        table = [(i, obs.params.shape[0], m.u_ini, m.u_fin, m.t_ini, m.t_fin, mc.index[m.feature_id])
-                 for i, (obs, obs_matches) in enumerate(zip(observed, matches)) for m in obs_matches]
-        if not table:
-            return None
-        beams = np.concatenate([a for obs, obs_matches in zip(observed, matches) if obs_matches
-                                for a in (obs.params, obs.angles, obs.ranges)])
-        curve, values = beam_kernels.beam_groups(np.array(table, dtype=float), beams,
-                                                 self.config.observation.beam_stride)
-        if curve.shape[0] == 0:
-            return None
-        return _Beams(curve, values[0], values[1], values[2])
-
-    def _linearize(self, beams: _Beams, x: np.ndarray, offset: np.ndarray,
-                   report: StepReport | None) -> _Linearization | None:
-        """Predicted ranges and the stacked Jacobian of every beam at the estimate ``x``, in
-        one compiled call over all the beams' map splines (:func:`linearize_beams`).
-
-        Beams that miss their spline or hit it at grazing incidence are dropped (and
-        counted when ``report`` is given). Returns None when no beam is left.
-        """
-        cols, H_c, residual, rows, hit_t, missed, grazing = linearize_beams(
-            self._map, x, offset, beams.curve, beams.bearings, beams.ranges, beams.t0,   # map: validated by _associate
-            math.tan(self.config.observation.max_incidence_rad))
-        if report is not None:
-            report.drop("missed", missed)
-            report.drop("grazing", grazing)
-        if rows.size == 0:
-            return None
-        return _Linearization(cols, H_c, residual, rows, hit_t)
-
-    @staticmethod
-    def _select(beams: _Beams, lin: _Linearization, keep: np.ndarray) -> tuple[_Beams, _Linearization]:
-        """The beams and their linearisation restricted to the rows in ``keep``, Newton
-        restarted from the rows' last hit parameters (one compiled call for the copies)."""
-        index, values, H_c = beam_kernels.select_rows(keep, lin.beam, beams.curve, beams.bearings, beams.ranges,
-                                                      lin.H_c, lin.residual, lin.hit_t)
-        return (_Beams(index[0], values[0], values[1], values[2]),
-                _Linearization(lin.cols, H_c, values[3], index[1], values[4]))
-
     def _update(self, observed, matches, offset, report: StepReport) -> None:
         """Iterated EKF update (Gauss–Newton on the mean, one covariance update at the end).
 
@@ -384,14 +291,13 @@ class SplineSLAM:
         iterations stop once a step moves every pose component by less than
         ``observation.iteration_tolerance`` of its posterior σ.
         """
-        beams = self._beam_groups(observed, matches)
+        model, mc = self.measurement, self._map   # the map: validated by the _associate that gave ``matches``
+        beams = model.beams(observed, matches, mc)
         report.matched_splines += sum(1 for m in matches if m)
         if beams is None:
             return
-        mc = self._map
-        R = self._range_variance
         x0 = self.state.x.copy()
-        lin = self._linearize(beams, x0, offset, report)
+        lin = model.linearize(beams, mc, x0, offset, report)
         if lin is None:
             return
         # Gating at the prior alone is biased: every innovation carries the same pose error,
@@ -402,32 +308,32 @@ class SplineSLAM:
         # selected below keep to these curves); the rest of the state is corrected once, at the end
         work = np.concatenate([POSE, mc.state_indices(beams.used_curves, self.state.size)])
         window = self.state.window(work)
-        s_diag = window.innovation_variances(lin.cols, lin.H_c, R)
+        s_diag = window.innovation_variances(lin.cols, lin.H_c, lin.R)
         coarse = lin.residual ** 2 <= self._loose_gate * s_diag
         report.drop("gate", int((~coarse).sum()))
         if not coarse.any():
             return
-        beams, lin = self._select(beams, lin, coarse)
-        gain = window.gain(lin.cols, lin.H_c, R)
+        beams, lin = model.select(beams, lin, coarse)
+        gain = window.gain(lin.cols, lin.H_c, lin.R)
         x_i = x0.copy()
         x_i[work] += gain.correction(lin.residual)[0]
-        lin = self._linearize(beams, x_i, offset, None)
+        lin = model.linearize(beams, mc, x_i, offset)
         if lin is None:
             return
-        fine = lin.residual ** 2 <= self._gate * gain.posterior_variances(lin.cols, lin.H_c, R)
+        fine = lin.residual ** 2 <= self._gate * gain.posterior_variances(lin.cols, lin.H_c, lin.R)
         report.drop("gate", int((~fine).sum()))
         if not fine.any():
             return
-        beams, lin = self._select(beams, lin, fine)
+        beams, lin = model.select(beams, lin, fine)
         tolerance = self.config.observation.iteration_tolerance
         prior_pose_var = np.diag(self.state.pose_covariance)
         for it in range(self.config.observation.iterations):
             if it:
-                lin = self._linearize(beams, x_i, offset, None)
+                lin = model.linearize(beams, mc, x_i, offset)
                 if lin is None:
                     return
-                beams, lin = self._select(beams, lin, np.ones(lin.residual.shape[0], dtype=bool))
-            gain = window.gain(lin.cols, lin.H_c, R)
+                beams, lin = model.select(beams, lin, np.ones(lin.residual.shape[0], dtype=bool))
+            gain = window.gain(lin.cols, lin.H_c, lin.R)
             # IEKF: ν_i = z − h(x_i) − H_i (x₀ − x_i)
             nu = lin.residual - lin.H_c @ (x0[lin.cols] - x_i[lin.cols])
             dx, _ = gain.correction(nu)
@@ -440,7 +346,7 @@ class SplineSLAM:
             # hundredths of σ, and every further iteration costs a linearisation and a gain
             if np.all(step <= tolerance * np.sqrt(gain.pose_variances(prior_pose_var))):
                 break
-        innovation = self.state.update(lin.cols, lin.H_c, nu, R, gain)
+        innovation = self.state.update(lin.cols, lin.H_c, nu, lin.R, gain)
         for c in beams.used_curves:
             mc.features[c].observations += 1
         report.innovations = np.concatenate([report.innovations, nu])
@@ -507,7 +413,7 @@ class SplineSLAM:
         if cfg.mode == "localization":
             feature.fixed_control_points = block.mean.reshape(2, n).T.copy()
         else:
-            idx = self.state.append(block.mean, block.cols, block.J, block.noise(self._range_variance))
+            idx = self.state.append(block.mean, block.cols, block.J, block.noise(self.measurement.R))
             feature.idx_x, feature.idx_y = idx[:n], idx[n:]
         self.features[feature.id] = feature
         self._unconfirmed.append(feature.id)
@@ -541,7 +447,7 @@ class SplineSLAM:
             self._map_extended(f, fitted.table)
             return True
         block = extension_block(new_rows, n_old, f.idx_x, f.idx_y, curve.control_points, bp)
-        new_idx = self.state.append(block.mean, block.cols, block.J, block.noise(self._range_variance))
+        new_idx = self.state.append(block.mean, block.cols, block.J, block.noise(self.measurement.R))
         self.state.transform(f.idx_x, ext.T)    # x[idx] ← T x[idx], P ← T P Tᵀ on that block
         self.state.transform(f.idx_y, ext.T)
         new_x, new_y = new_idx[:m], new_idx[m:]

@@ -18,10 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bsslam.slam import range_kernels
-from bsslam.slam.map_curves import MapCurves
 from bsslam.spline import BSplineCurve, basis_functions, intersect_rays
-from bsslam.spline.intersect import _MAX_NEWTON, _MAX_REFINE, _ROOT_TOLERANCE_M, _STEP_TOLERANCE, _unit_grid
 
 
 @dataclass(frozen=True)
@@ -88,36 +85,3 @@ def predict_beams(curve: BSplineCurve, robot_pose: np.ndarray, laser_offset: np.
         first_cp=span - curve.degree,
         H_cp_x=-beta * gx[:, None], H_cp_y=-beta * gy[:, None],
     )
-
-
-def linearize_beams(mc: MapCurves, x: np.ndarray, laser_offset: np.ndarray, curve: np.ndarray, bearings: np.ndarray,
-                    ranges: np.ndarray, t0: np.ndarray, max_tan: float, max_range: float = np.inf):
-    """The filter's linearisation of m beams at the state mean ``x`` (n,): each beam with
-    robot-frame bearing ``bearings[j]`` (rad) and measured range ``ranges[j]`` (m) against
-    map curve ``curve[j]`` of ``mc``, Newton from ``t0[j]`` (m). Beams that miss their curve
-    (within ``max_range``) or hit it with a tangent ratio |r| > ``max_tan`` (grazing) are
-    dropped.
-
-    The numbers of :func:`predict_beams`, for all the beams' curves at once at the pose
-    ``x[:3]``, stacked over ``mc.state_rows``, in one compiled call
-    (:func:`bsslam.slam.range_kernels.linearize_beams`); the tests check it bit for bit
-    against the numpy form it replaced (``tests/slam/observation_oracle.py``).
-
-    Returns:
-        ``(cols, H_c, residual, rows, hit_t, missed, grazing)``: the pose indices 0, 1, 2
-        then the touched state indices (c,); the Jacobian (k, c) of the k kept beams
-        ``rows`` (k,) (increasing); their residuals z − h(x) (k,) (m) and hit parameters
-        (k,) (m); the counts of missed and grazing beams.
-    """
-    phi = x[2]
-    cos_phi, sin_phi = np.cos(phi), np.sin(phi)
-    # computed once: the intersection and the Jacobian use the same numbers
-    mu = (phi + laser_offset[2]) + bearings
-    cos_mu, sin_mu = np.cos(mu), np.sin(mu)
-    table = mc.table
-    missed, grazing, cols, H_c, rows, values = range_kernels.linearize_beams(
-        x, mc.state_rows, mc.fixed_control_points, table.power_basis, table.window, table.real, table.piece_lo,
-        table.width, table.piece_start, table.lo, table.hi, curve, ranges, t0, cos_mu, sin_mu, cos_phi, sin_phi,
-        laser_offset, max_tan, max_range, _MAX_NEWTON, _STEP_TOLERANCE, _ROOT_TOLERANCE_M, _unit_grid(8),
-        _MAX_REFINE)
-    return cols, H_c, values[0], rows, values[1], missed, grazing
