@@ -11,21 +11,21 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bsslam.config import SLAMConfig
-from bsslam.errors import FilterError, FitError, InputError
+from bsslam.errors import FitError, InputError
 from bsslam.scan import LaserScan, ObservedSpline, ScanFeatures, extract_splines
 from bsslam.scan.refine import refine_for_map
 from bsslam.slam.association import Match, associate_curves, association_thresholds
 from bsslam.slam.ekf import gate_threshold
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
 from bsslam.slam.features import MapSpline, SplineFeature
-from bsslam.slam.map_curves import MapCurves
+from bsslam.slam.spline_map import SplineMap
 from bsslam.slam.measurement import RangeModel
+from bsslam.slam.observation import laser_pose
 from bsslam.slam.estimator import CompressedEKF, Estimator
 from bsslam.slam.motion import motion_noise
-from bsslam.slam.observation import laser_pose
 from bsslam.slam.state import POSE
 from bsslam.spline import FitResult, extend_curve, fit_curve
-from bsslam.spline.batch import CurveTable, closest_points_batch, curve_table
+from bsslam.spline.batch import closest_points_batch, curve_table
 
 
 @dataclass
@@ -87,13 +87,9 @@ class SplineSLAM:
             initial_covariance = np.diag(np.square(self.config.initial_pose_sigma))
         self.state: Estimator = estimator(np.asarray(initial_pose, dtype=float),
                                           np.asarray(initial_covariance, dtype=float))
-        self.features: dict[int, SplineFeature] = {}
+        self.spline_map = SplineMap()
         self.steps = 0
-        self._next_id = 0
-        self._map: MapCurves | None = None  # batch table of the map splines, see _map_curves
-        self._map_added: list[SplineFeature] = []   # features added since it was built
         self._features: ScanFeatures | None = None   # the current scan's
-        self._unconfirmed: list[int] = []   # splines no update has used yet, oldest first (see _prune)
         self._gate = gate_threshold(self.config.observation.gate_probability)
         self._loose_gate = gate_threshold(1.0 - (1.0 - self.config.observation.gate_probability) / 100.0)
         self._build_map = True
@@ -113,13 +109,18 @@ class SplineSLAM:
         slam = cls(config, initial_pose, initial_covariance)
         for spline in splines:
             c = spline.curve
-            feature = SplineFeature(slam._new_id(), c.degree, c.knots.copy(),
+            feature = SplineFeature(slam.spline_map.new_id(), c.degree, c.knots.copy(),
                                     fixed_control_points=np.array(c.control_points, dtype=float))
             slam.features[feature.id] = feature
         slam._build_map = False
         return slam
 
     # -- public views -------------------------------------------------------------------
+    @property
+    def features(self) -> dict[int, SplineFeature]:
+        """The map splines by id (insertion order)."""
+        return self.spline_map.features
+
     @property
     def pose(self) -> np.ndarray:
         """(3,) current pose estimate (x m, y m, φ rad)."""
@@ -165,17 +166,7 @@ class SplineSLAM:
         """
         offset = np.zeros(3) if laser_offset is None else np.asarray(laser_offset, dtype=float)
         report = StepReport()
-        if odometry_delta is not None:
-            delta = np.asarray(odometry_delta, dtype=float).reshape(-1)
-            if delta.shape != (3,) or not np.all(np.isfinite(delta)):
-                raise InputError(f"odometry increment must be 3 finite numbers, got {odometry_delta!r}")
-            if odometry_covariance is None:
-                Q = motion_noise(delta, self.config.motion)
-            else:
-                Q = np.asarray(odometry_covariance, dtype=float)
-                if Q.shape != (3, 3) or not np.all(np.isfinite(Q)) or np.any(np.linalg.eigvalsh(0.5 * (Q + Q.T)) < 0):
-                    raise InputError(f"odometry covariance must be a 3×3 positive semi-definite matrix, got {Q!r}")
-            self.state.predict(delta, Q)
+        self._predict(odometry_delta, odometry_covariance)
         observed = self._observe(scan, report, features)
         matches = self._associate(observed, offset)
         self._update(observed, matches, offset, report)
@@ -187,6 +178,22 @@ class SplineSLAM:
         report.state_size = self.state.size
         return report
 
+    def _predict(self, odometry_delta, odometry_covariance) -> None:
+        """The motion update: the estimator moves the pose by the checked increment, with the
+        given covariance or the configured noise model's (nothing when the increment is None)."""
+        if odometry_delta is None:
+            return
+        delta = np.asarray(odometry_delta, dtype=float).reshape(-1)
+        if delta.shape != (3,) or not np.all(np.isfinite(delta)):
+            raise InputError(f"odometry increment must be 3 finite numbers, got {odometry_delta!r}")
+        if odometry_covariance is None:
+            Q = motion_noise(delta, self.config.motion)
+        else:
+            Q = np.asarray(odometry_covariance, dtype=float)
+            if Q.shape != (3, 3) or not np.all(np.isfinite(Q)) or np.any(np.linalg.eigvalsh(0.5 * (Q + Q.T)) < 0):
+                raise InputError(f"odometry covariance must be a 3×3 positive semi-definite matrix, got {Q!r}")
+        self.state.predict(delta, Q)
+
     def _observe(self, scan: LaserScan, report: StepReport, features: ScanFeatures | None) -> list[ObservedSpline]:
         if features is None:
             features = extract_splines(scan, self.config)
@@ -196,40 +203,9 @@ class SplineSLAM:
         report.observed_splines = len(features.splines)
         return features.splines
 
-    def _map_curves(self) -> MapCurves | None:
-        """The map splines' batch table. It is built once and then kept up to date: splines
-        added join it at the next use (:meth:`_map_grew`), an extended spline's rows are
-        replaced (:meth:`_map_extended`), removed splines' rows taken out
-        (:meth:`remove_features`), each the table a rebuild would give, bit for bit."""
-        if not self.features:
-            return None
-        if self._map is None:
-            self._map = MapCurves(list(self.features.values()))
-            self._map_added.clear()
-        self._merge_added()
-        return self._map
-
-    def _merge_added(self) -> None:
-        """The splines added since the table was last brought up to date join it."""
-        if self._map is not None and self._map_added:
-            self._map = self._map.with_added(self._map_added)
-        self._map_added.clear()
-
-    def _map_extended(self, feature: SplineFeature, table: CurveTable) -> None:
-        """``feature`` was extended (new knots, state rows): its rows of the map table are
-        replaced by ``table``, its own one-curve table."""
-        if self._map is not None:
-            self._merge_added()
-            self._map = self._map.with_replaced(feature, table)
-
-    def _map_grew(self, feature: SplineFeature) -> None:
-        """A spline was added (after all others, in ``features`` order): it joins the table."""
-        if self._map is not None:
-            self._map_added.append(feature)
-
     def _associate(self, observed: list[ObservedSpline], offset: np.ndarray) -> list[list[Match]]:
         cfg = self.config.association
-        mc = self._map_curves()
+        mc = self.spline_map.curves()
         if mc is None or not observed:
             return [[] for _ in observed]
         state = self.state
@@ -281,17 +257,17 @@ class SplineSLAM:
                 matches[i] = m
 
     def _update(self, observed, matches, offset, report: StepReport) -> None:
-        """Iterated EKF update (Gauss–Newton on the mean, one covariance update at the end).
+        """Iterated EKF update (Gauss–Newton on the mean, one covariance update at the end):
+        the matched beams linearised at the prior, gated (:meth:`_gated`), iterated
+        (:meth:`_iterate`), and the estimator updated with the last linearisation.
 
         The paper's filter linearises once. Relinearising the range model at the corrected
         estimate costs a gain and a linearisation per iteration, the corrections computed on
         the working rows only (the pose and the beams' splines; the whole state is corrected
         once, at the end), and removes most of the linearisation error after a poorly
-        predicted turn, which is where the single-step filter becomes inconsistent. The
-        iterations stop once a step moves every pose component by less than
-        ``observation.iteration_tolerance`` of its posterior σ.
+        predicted turn, which is where the single-step filter becomes inconsistent.
         """
-        model, mc = self.measurement, self._map   # the map: validated by the _associate that gave ``matches``
+        model, mc = self.measurement, self.spline_map.table   # the map: validated by the _associate that gave ``matches``
         beams = model.beams(observed, matches, mc)
         report.matched_splines += sum(1 for m in matches if m)
         if beams is None:
@@ -300,38 +276,67 @@ class SplineSLAM:
         lin = model.linearize(beams, mc, x0, offset, report)
         if lin is None:
             return
-        # Gating at the prior alone is biased: every innovation carries the same pose error,
-        # so after a poorly predicted step a tight gate drops exactly the beams that disagree
-        # with the prior. Gross outliers go first (loose gate at the prior); the real gate is
-        # applied at the first corrected estimate with posterior variances.
         # the entries a relinearisation reads: the pose and the beams' splines (the subsets
-        # selected below keep to these curves); the rest of the state is corrected once, at the end
+        # the gates select keep to these curves); the rest of the state is corrected once, at the end
         work = np.concatenate([POSE, mc.state_indices(beams.used_curves, self.state.size)])
         window = self.state.window(work)
+        gated = self._gated(beams, lin, window, x0, work, offset, report)
+        if gated is None:
+            return
+        iterated = self._iterate(*gated, window, x0, work, offset)
+        if iterated is None:
+            return
+        beams, lin, nu, gain = iterated
+        innovation = self.state.update(lin.cols, lin.H_c, nu, lin.R, gain)
+        for c in beams.used_curves:
+            mc.features[c].observations += 1
+        report.innovations = np.concatenate([report.innovations, nu])
+        report.innovation_variances = np.concatenate([report.innovation_variances, innovation.variances])
+        report.nis += innovation.nis
+        report.nis_dof += int(nu.shape[0])
+        report.beams_used = report.nis_dof
+
+    def _gated(self, beams, lin, window, x0, work, offset, report: StepReport):
+        """The beams whose innovations pass the gates, linearised at the first corrected
+        estimate x_i: ``(beams, lin, x_i)``, or None when none is left.
+
+        Gating at the prior alone is biased: every innovation carries the same pose error,
+        so after a poorly predicted step a tight gate drops exactly the beams that disagree
+        with the prior. Gross outliers go first (loose gate at the prior); the real gate is
+        applied at the first corrected estimate with posterior variances."""
+        model, mc = self.measurement, self.spline_map.table
         s_diag = window.innovation_variances(lin.cols, lin.H_c, lin.R)
         coarse = lin.residual ** 2 <= self._loose_gate * s_diag
         report.drop("gate", int((~coarse).sum()))
         if not coarse.any():
-            return
+            return None
         beams, lin = model.select(beams, lin, coarse)
         gain = window.gain(lin.cols, lin.H_c, lin.R)
         x_i = x0.copy()
         x_i[work] += gain.correction(lin.residual)[0]
         lin = model.linearize(beams, mc, x_i, offset)
         if lin is None:
-            return
+            return None
         fine = lin.residual ** 2 <= self._gate * gain.posterior_variances(lin.cols, lin.H_c, lin.R)
         report.drop("gate", int((~fine).sum()))
         if not fine.any():
-            return
+            return None
         beams, lin = model.select(beams, lin, fine)
+        return beams, lin, x_i
+
+    def _iterate(self, beams, lin, x_i, window, x0, work, offset):
+        """Gauss–Newton on the mean from x_i, on the working rows: ``(beams, lin, ν, gain)``
+        of the last iteration (ν the IEKF innovation at x_i), or None when every beam is
+        lost. The iterations stop once a step moves every pose component by less than
+        ``observation.iteration_tolerance`` of its posterior σ."""
+        model, mc = self.measurement, self.spline_map.table
         tolerance = self.config.observation.iteration_tolerance
         prior_pose_var = np.diag(self.state.pose_covariance)
         for it in range(self.config.observation.iterations):
             if it:
                 lin = model.linearize(beams, mc, x_i, offset)
                 if lin is None:
-                    return
+                    return None
                 beams, lin = model.select(beams, lin, np.ones(lin.residual.shape[0], dtype=bool))
             gain = window.gain(lin.cols, lin.H_c, lin.R)
             # IEKF: ν_i = z − h(x_i) − H_i (x₀ − x_i)
@@ -346,14 +351,7 @@ class SplineSLAM:
             # hundredths of σ, and every further iteration costs a linearisation and a gain
             if np.all(step <= tolerance * np.sqrt(gain.pose_variances(prior_pose_var))):
                 break
-        innovation = self.state.update(lin.cols, lin.H_c, nu, lin.R, gain)
-        for c in beams.used_curves:
-            mc.features[c].observations += 1
-        report.innovations = np.concatenate([report.innovations, nu])
-        report.innovation_variances = np.concatenate([report.innovation_variances, innovation.variances])
-        report.nis += innovation.nis
-        report.nis_dof += int(nu.shape[0])
-        report.beams_used = report.nis_dof
+        return beams, lin, nu, gain
 
     # -- map enlargement ----------------------------------------------------------------
     def _enlarge(self, observed, matches, offset, report: StepReport) -> None:
@@ -387,10 +385,6 @@ class SplineSLAM:
                 if self._add_feature(obs, sel, offset, refit=True):
                     report.new_splines += 1
 
-    def _new_id(self) -> int:
-        self._next_id += 1
-        return self._next_id - 1
-
     def _add_feature(self, obs: ObservedSpline, sel: np.ndarray, offset: np.ndarray, refit: bool = False) -> bool:
         cfg = self.config
         if refit:
@@ -409,15 +403,13 @@ class SplineSLAM:
         bp = beam_points(self.state.pose, offset, obs.angles[sel], obs.ranges[sel])
         block = new_feature_block(phi, bp)
         n = phi.shape[0]
-        feature = SplineFeature(self._new_id(), obs.curve.degree, knots.copy(), created=self.steps)
+        feature = SplineFeature(self.spline_map.new_id(), obs.curve.degree, knots.copy(), created=self.steps)
         if cfg.mode == "localization":
             feature.fixed_control_points = block.mean.reshape(2, n).T.copy()
         else:
             idx = self.state.append(block.mean, block.cols, block.J, block.noise(self.measurement.R))
             feature.idx_x, feature.idx_y = idx[:n], idx[n:]
-        self.features[feature.id] = feature
-        self._unconfirmed.append(feature.id)
-        self._map_grew(feature)
+        self.spline_map.add(feature)
         return True
 
     def _extend_feature(self, f: SplineFeature, obs: ObservedSpline, match: Match, side: str,
@@ -444,7 +436,7 @@ class SplineSLAM:
         if not f.in_state:
             f.fixed_control_points = ext.curve.control_points.copy()
             f.knots = ext.curve.knots.copy()
-            self._map_extended(f, fitted.table)
+            self.spline_map.extended(f, fitted.table)
             return True
         block = extension_block(new_rows, n_old, f.idx_x, f.idx_y, curve.control_points, bp)
         new_idx = self.state.append(block.mean, block.cols, block.J, block.noise(self.measurement.R))
@@ -456,7 +448,7 @@ class SplineSLAM:
         else:
             f.idx_x, f.idx_y = np.concatenate([new_x, f.idx_x]), np.concatenate([new_y, f.idx_y])
         f.knots = ext.curve.knots.copy()
-        self._map_extended(f, fitted.table)
+        self.spline_map.extended(f, fitted.table)
         return True
 
     def _prune(self) -> int:
@@ -465,13 +457,7 @@ class SplineSLAM:
         after = self.config.mapping.prune_after_scans
         if not after:
             return 0
-        # A spline once used stays, so the candidates are the splines of the last ``after``
-        # scans that no update has used yet (``_unconfirmed``): a pass over the whole map each
-        # scan cost 0.1 ms at 150 splines.
-        waiting = [self.features[i] for i in self._unconfirmed if i in self.features]
-        waiting = [f for f in waiting if f.observations == 0]
-        stale = [f.id for f in waiting if self.steps - f.created >= after]
-        self._unconfirmed = [f.id for f in waiting if self.steps - f.created < after]
+        stale = self.spline_map.stale(self.steps, after)
         self.remove_features(stale)
         return len(stale)
 
@@ -481,19 +467,7 @@ class SplineSLAM:
 
     def remove_features(self, feature_ids) -> None:
         """Delete map splines and their rows/columns of the state, compacting P once."""
-        removed = [self.features.pop(fid) for fid in feature_ids]
-        if not removed:
-            return
-        idx = [f.state_indices for f in removed if f.in_state]
-        mapping = self.state.remove(np.concatenate(idx)) if idx else None
-        if self._map is not None:   # the table, with the splines added since, drops their rows
-            self._merge_added()
-            self._map = self._map.without([f.id for f in removed], mapping)
-        if mapping is None:
-            return
-        kept = [g for g in self.features.values() if g.in_state]
-        for g in kept:
-            g.idx_x, g.idx_y = mapping[g.idx_x], mapping[g.idx_y]
-        # one check for all: a per-feature test cost more than the whole removal
-        if kept and np.concatenate([g.idx_x for g in kept] + [g.idx_y for g in kept]).min() < 0:  # pragma: no cover - disjoint
-            raise FilterError("feature indices overlapped")
+        feature_ids = list(feature_ids)
+        rows = self.spline_map.state_indices(feature_ids)
+        mapping = self.state.remove(rows) if rows is not None else None
+        self.spline_map.remove(feature_ids, mapping)
