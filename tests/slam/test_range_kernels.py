@@ -13,7 +13,7 @@ from bsslam.slam import range_kernels
 from bsslam.slam.features import SplineFeature
 from bsslam.slam.kernels import stack_jacobian
 from bsslam.slam.map_curves import MapCurves
-from bsslam.slam.observation import laser_pose
+from bsslam.slam.measurement import laser_pose
 from bsslam.spline import fit_curve
 from bsslam.spline.intersect import _MAX_REFINE, _STEP_TOLERANCE, _unit_grid
 

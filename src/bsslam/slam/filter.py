@@ -19,8 +19,7 @@ from bsslam.slam.ekf import gate_threshold
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
 from bsslam.slam.features import MapSpline, SplineFeature
 from bsslam.slam.spline_map import SplineMap
-from bsslam.slam.measurement import RangeModel
-from bsslam.slam.observation import laser_pose
+from bsslam.slam.measurement import RangeModel, laser_pose
 from bsslam.slam.estimator import CompressedEKF, Estimator
 from bsslam.slam.motion import motion_noise
 from bsslam.slam.state import POSE

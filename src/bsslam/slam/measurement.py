@@ -6,7 +6,19 @@ the beams (:meth:`RangeModel.beams`) and linearises those at a state mean into t
 ``(cols, H, residual, R)`` an :class:`~bsslam.slam.estimator.Estimator` updates with
 (:meth:`RangeModel.linearize`); :meth:`RangeModel.select` keeps the rows the gates pass.
 The range and its Jacobians (22)–(27) are computed by one compiled call over all the beams'
-splines (:meth:`bsslam.slam.map_curves.MapCurves.linearize`).
+splines (:meth:`bsslam.slam.map_curves.MapCurves.linearize`); the numpy form it replaced is
+the tests' oracle (``tests/slam/observation_oracle.py``).
+
+The laser sits at ``laser_offset`` (x m, y m, φ rad) in the robot frame. For a beam with
+bearing τ the world beam angle is μ = φ + φ_o + τ and the beam starts at
+``p_l = t_r + R(φ) o``. The predicted range z is where the spline, moved into the beam
+frame, crosses the beam's x-axis. With the tangent ratio ``r = x̃'(t*)/ỹ'(t*)``:
+
+* ∂z/∂p_l = g = (−cos μ − r sin μ, −sin μ + r cos μ);
+* ∂z/∂μ = z·r, so ∂z/∂φ = z·r + g·R'(φ)·o (the lever arm of an offset laser);
+* ∂z/∂(x_i, y_i) = −β_i(t*)·g — moving the curve by δ is moving the sensor by −δ.
+
+These are (22)–(27) of the paper; tests check them against finite differences.
 """
 
 from __future__ import annotations
@@ -22,7 +34,15 @@ from bsslam.config import ObservationConfig
 from bsslam.scan import ObservedSpline
 from bsslam.slam import beam_kernels, range_kernels
 from bsslam.slam.association import Match
+from bsslam.se2 import compose
 from bsslam.slam.map_curves import MapCurves
+
+
+def laser_pose(robot_pose: np.ndarray, laser_offset: np.ndarray) -> np.ndarray:
+    """World pose (3,) of the laser mounted at ``laser_offset`` on a robot at ``robot_pose``:
+    their composition, the heading not wrapped (the beam angles μ = φ + φ_o + τ are formed
+    from it as the compiled kernels form them)."""
+    return compose(robot_pose, laser_offset, wrap=False)
 
 
 @dataclass(frozen=True, eq=False)
