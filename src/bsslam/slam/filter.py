@@ -1,7 +1,11 @@
 """BS-SLAM: the EKF with B-spline map features (paper §III).
 
-``SplineSLAM.step`` is the whole per-scan algorithm, in the paper's order:
-predict → segment and fit → associate → update → extend / add.
+``SplineSLAM.step`` is the whole per-scan algorithm, in the paper's order: predict →
+observe (segment and fit) → associate → update → re-associate → enlarge (extend / add) and
+prune. It works through three seams: the joint Gaussian is an
+:class:`~bsslam.slam.estimator.Estimator` (``state``), the map a
+:class:`~bsslam.slam.spline_map.SplineMap` (``spline_map``), and the ranges a
+:class:`~bsslam.slam.measurement.MeasurementModel` (``measurement``).
 """
 
 from __future__ import annotations
@@ -17,11 +21,11 @@ from bsslam.scan.refine import refine_for_map
 from bsslam.slam.association import Match, associate_curves, association_thresholds
 from bsslam.slam.ekf import gate_threshold
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
-from bsslam.slam.features import MapSpline, SplineFeature
-from bsslam.slam.spline_map import SplineMap
-from bsslam.slam.measurement import RangeModel, laser_pose
 from bsslam.slam.estimator import CompressedEKF, Estimator
+from bsslam.slam.features import MapSpline, SplineFeature
+from bsslam.slam.measurement import RangeModel, laser_pose
 from bsslam.slam.motion import motion_noise
+from bsslam.slam.spline_map import SplineMap
 from bsslam.slam.state import POSE
 from bsslam.spline import FitResult, extend_curve, fit_curve
 from bsslam.spline.batch import closest_points_batch, curve_table
