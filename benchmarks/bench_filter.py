@@ -44,7 +44,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 import bsslam.slam.ekf as ekf_module  # noqa: E402
-import bsslam.slam.filter as filter_module  # noqa: E402
+import bsslam.slam.estimator as estimator_module  # noqa: E402
 from bsslam.config import MappingConfig, SLAMConfig, SplineConfig  # noqa: E402
 from bsslam.experiments.consistency import simulation_config  # noqa: E402
 from bsslam.se2 import between as relative  # noqa: E402
@@ -53,6 +53,7 @@ from bsslam.sim.geometry import WallSet, rounded_rectangle_walls  # noqa: E402
 from bsslam.sim.paths import rounded_rectangle_loop  # noqa: E402
 from bsslam.sim.worlds import World  # noqa: E402
 from bsslam.slam import SplineSLAM  # noqa: E402
+from bsslam.slam.measurement import RangeModel  # noqa: E402
 from bsslam.slam.state import JointState, _subtract_outer  # noqa: E402
 
 BINS = [0, 250, 500, 750, 1000, 1250, 1500, 2000, 3000, 10**9]
@@ -68,15 +69,15 @@ BINS = [0, 250, 500, 750, 1000, 1250, 1500, 2000, 3000, 10**9]
 #   fold counts here wherever it happens: in an update, or when a new spline finds the state's
 #   exact block full (inside "enlarge" otherwise).
 STAGES = {
-    "predict": [(filter_module, "predict_state")],
+    "predict": [(estimator_module.CompressedEKF, "predict")],
     "segment+fit": [(SplineSLAM, "_observe")],
     "associate": [(SplineSLAM, "_associate")],
-    "linearise": [(SplineSLAM, "_linearize")],
+    "linearise": [(RangeModel, "linearize")],
     "covariance reads": [(JointState, "block"), (JointState, "diagonal"), (JointState, "rows"),
                          (JointState, "columns_times")],
     "S/gain": [(ekf_module.StackedGain, "__init__"), (ekf_module.StackedGain, "correction"),
                (ekf_module.StackedGain, "state_correction"), (ekf_module.StackedGain, "pose_variances"),
-               (ekf_module.StackedGain, "posterior_variances"), (filter_module, "innovation_variances")],
+               (ekf_module.StackedGain, "posterior_variances"), (ekf_module, "innovation_variances")],
     "covariance update": [(ekf_module.StackedGain, "update_covariance"), (JointState, "fold")],
     "enlarge": [(SplineSLAM, "_enlarge")],
 }

@@ -9,13 +9,16 @@ import numpy as np
 from bsslam.trajectory import wrap_angle
 
 
-def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a ∘ b: pose b, given in the frame of a, expressed in a's parent frame."""
+def compose(a: np.ndarray, b: np.ndarray, wrap: bool = True) -> np.ndarray:
+    """a ∘ b: pose b, given in the frame of a, expressed in a's parent frame. The heading
+    is wrapped to (−π, π] unless ``wrap`` is False (then it is the plain sum a_φ + b_φ,
+    e.g. a sensor's heading that beam angles are added to)."""
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    heading = a[..., 2] + b[..., 2]
     return np.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1],
                      a[..., 1] + s * b[..., 0] + c * b[..., 1],
-                     wrap_angle(a[..., 2] + b[..., 2])], axis=-1)
+                     wrap_angle(heading) if wrap else heading], axis=-1)
 
 
 def inverse(a: np.ndarray) -> np.ndarray:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from bsslam.slam.enlarge import BeamPoints, LinearBlock
-from bsslam.slam.observation import laser_pose
+from bsslam.slam.measurement import laser_pose
 
 
 def beam_points(robot_pose: np.ndarray, laser_offset: np.ndarray, bearings: np.ndarray,

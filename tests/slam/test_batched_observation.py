@@ -8,10 +8,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from observation_oracle import predict_beams_batch
+from observation_oracle import predict_beams, predict_beams_batch
 from bsslam.slam.association import associate, control_point_gaps, relative_sigma
-from bsslam.slam.observation import predict_beams
-from bsslam.spline import BSplineCurve, closest_point, fit_curve
+from bsslam.spline import BSplineCurve, fit_curve
+from closest_oracle import closest_point
 from bsslam.spline.batch import curve_table
 from bsslam.spline.knots import clamped_knots_with_spans
 

@@ -1,5 +1,5 @@
-"""The filter's compiled beam bookkeeping (:meth:`SplineSLAM._beam_groups`,
-:meth:`SplineSLAM._select`, :mod:`bsslam.slam.beam_kernels`) against the numpy form it
+"""The filter's compiled beam bookkeeping (:meth:`RangeModel.beams`,
+:meth:`RangeModel.select`, :mod:`bsslam.slam.beam_kernels`) against the numpy form it
 replaced (``beam_groups_oracle``), bit for bit, on seeded random scans."""
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from bsslam.config import ObservationConfig, SLAMConfig
-from bsslam.slam import SplineSLAM
+from bsslam.config import ObservationConfig
 from bsslam.slam.association import Match
+from bsslam.slam.measurement import RangeModel
 
 from beam_groups_oracle import beam_groups as oracle_beam_groups
 from beam_groups_oracle import select_rows as oracle_select_rows
@@ -51,10 +51,19 @@ def _matches(rng, obs, feature_ids):
     return sorted(out, key=lambda m: m.u_ini)
 
 
+class _Model:
+    """The range model over a stand-in map table (``beams`` reads only its id → curve map)."""
+
+    def __init__(self, index, stride):
+        self.model = RangeModel(ObservationConfig(beam_stride=stride))
+        self.curves = SimpleNamespace(index=index)
+
+    def beams(self, observed, matches):
+        return self.model.beams(observed, matches, self.curves)
+
+
 def _filter(index, stride):
-    slam = SplineSLAM(SLAMConfig().replace(observation=ObservationConfig(beam_stride=stride)))
-    slam._map = SimpleNamespace(index=index)   # _beam_groups reads only the id → curve map
-    return slam
+    return _Model(index, stride)
 
 
 @pytest.mark.parametrize("stride", [1, 2, 3])
@@ -68,7 +77,7 @@ def test_beam_groups_matches_the_numpy_form(stride):
         observed = [_observed(rng, int(rng.integers(1, 40))) for _ in range(rng.integers(0, 6))]
         matches = [_matches(rng, o, feature_ids) for o in observed]
         want = oracle_beam_groups(observed, matches, index, stride)
-        got = slam._beam_groups(observed, matches)
+        got = slam.beams(observed, matches)
         if want is None:
             assert got is None
             empty += 1
@@ -82,19 +91,19 @@ def test_first_match_by_u_ini_wins():
     obs = SimpleNamespace(params=np.array([0.0, 0.1, 0.2, 0.3]), angles=np.arange(4.0), ranges=np.arange(4.0) + 1)
     first = Match(1, 0.0, 0.2, 0.0, 1.0, False, False)
     second = Match(2, 0.1, 0.3, 5.0, 6.0, False, False)
-    got = _filter({1: 0, 2: 1}, 1)._beam_groups([obs], [[first, second]])
+    got = _filter({1: 0, 2: 1}, 1).beams([obs], [[first, second]])
     assert got.curve.tolist() == [0, 0, 0, 1]
     assert got.bearings.tolist() == [0.0, 1.0, 2.0, 3.0]
-    got = _filter({1: 0, 2: 1}, 2)._beam_groups([obs], [[first, second]])
+    got = _filter({1: 0, 2: 1}, 2).beams([obs], [[first, second]])
     assert got.curve.tolist() == [0, 0] and got.bearings.tolist() == [0.0, 2.0]
 
 
 def test_no_beam_in_any_interval_gives_none():
     obs = SimpleNamespace(params=np.array([0.0, 0.5]), angles=np.zeros(2), ranges=np.ones(2))
     slam = _filter({1: 0}, 1)
-    assert slam._beam_groups([obs], [[Match(1, 0.1, 0.4, 0.0, 1.0, False, False)]]) is None
-    assert slam._beam_groups([obs], [[]]) is None
-    assert slam._beam_groups([], []) is None
+    assert slam.beams([obs], [[Match(1, 0.1, 0.4, 0.0, 1.0, False, False)]]) is None
+    assert slam.beams([obs], [[]]) is None
+    assert slam.beams([], []) is None
 
 
 def test_select_matches_the_numpy_form():
@@ -103,10 +112,10 @@ def test_select_matches_the_numpy_form():
         b, m, c = int(rng.integers(1, 30)), int(rng.integers(0, 30)), int(rng.integers(3, 12))
         beams = SimpleNamespace(curve=rng.integers(0, 5, b).astype(np.intp), bearings=rng.normal(size=b),
                                 ranges=rng.normal(size=b))
-        lin = SimpleNamespace(cols=np.arange(c), beam=np.sort(rng.integers(0, b, m)).astype(np.intp),
+        lin = SimpleNamespace(cols=np.arange(c), R=1e-4, beam=np.sort(rng.integers(0, b, m)).astype(np.intp),
                               H_c=rng.normal(size=(m, c)), residual=rng.normal(size=m), hit_t=rng.normal(size=m))
         keep = rng.random(m) < rng.choice([0.0, 0.5, 1.0])
-        sub_beams, sub = SplineSLAM._select(beams, lin, keep)
+        sub_beams, sub = RangeModel(ObservationConfig()).select(beams, lin, keep)
         want = oracle_select_rows(keep, lin.beam, beams.curve, beams.bearings, beams.ranges, lin.H_c, lin.residual,
                                   lin.hit_t)
         got = (sub_beams.curve, sub_beams.bearings, sub_beams.ranges, sub_beams.t0, sub.H_c, sub.residual, sub.beam,
@@ -118,4 +127,4 @@ def test_select_matches_the_numpy_form():
 
 def test_no_map_and_no_matches_gives_none():
     obs = SimpleNamespace(params=np.array([0.0, 0.5]), angles=np.zeros(2), ranges=np.ones(2))
-    assert SplineSLAM(SLAMConfig())._beam_groups([obs], [[]]) is None   # the first scan: no map yet
+    assert RangeModel(ObservationConfig()).beams([obs], [[]], None) is None   # the first scan: no map yet

@@ -6,7 +6,7 @@ import pytest
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
 from bsslam.se2 import compose
 from bsslam.se2 import compose_jacobians
-from bsslam.slam.observation import predict_beams
+from observation_oracle import predict_beams
 from bsslam.spline import BSplineCurve, clamped_knots, extend_curve, fit_curve
 
 

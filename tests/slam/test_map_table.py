@@ -29,7 +29,7 @@ def test_grown_extended_and_pruned_table_equals_the_rebuilt_one(monkeypatch):
     config = simulation_config(SLAMConfig(), sim).replace(relocalize=False)
     slam = SplineSLAM(config)
     run_dataset(data, config, point_stride=0, slam=slam)
-    kept = slam._map_curves()
+    kept = slam.spline_map.curves()
     assert len(grown) > 3, "the table never grew in place"
     assert len(shrunk) > 3, "no pruning shrank the table in place"
     assert len(replaced) > 3, "no extension replaced its spline's rows in place"

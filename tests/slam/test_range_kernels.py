@@ -1,4 +1,4 @@
-"""The filter's compiled linearisation (:func:`bsslam.slam.observation.linearize_beams`)
+"""The filter's compiled linearisation (:meth:`bsslam.slam.map_curves.MapCurves.linearize`)
 against the numpy path it replaced — :func:`predict_beams_batch`, the hit and grazing masks,
 :func:`stack_jacobian` — bit for bit."""
 
@@ -13,7 +13,7 @@ from bsslam.slam import range_kernels
 from bsslam.slam.features import SplineFeature
 from bsslam.slam.kernels import stack_jacobian
 from bsslam.slam.map_curves import MapCurves
-from bsslam.slam.observation import laser_pose, linearize_beams
+from bsslam.slam.measurement import laser_pose
 from bsslam.spline import fit_curve
 from bsslam.spline.intersect import _MAX_REFINE, _STEP_TOLERANCE, _unit_grid
 
@@ -109,7 +109,7 @@ def test_linearize_beams_equals_the_numpy_path(case, seed):
     mc, curves, x = _map(rng, degrees, fixed)
     offset = np.array([0.15, -0.05, rng.uniform(-0.3, 0.3)]) if seed % 2 else np.zeros(3)
     beams = _beams(rng, curves, x, offset, 60, bad)
-    got = linearize_beams(mc, x, offset, *beams, max_tan)
+    got = mc.linearize(x, offset, *beams, max_tan)
     _assert_bitwise(got, _reference(mc, x, offset, *beams, max_tan))
     if bad == 0.0 and max_tan == 0.05:
         assert got[6] > 0          # some grazing beams are dropped

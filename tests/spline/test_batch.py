@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from closest_oracle import closest_point
 from ray_oracle import basis_at, intersect_rays_batch
 from spline_cases import batch_of, corner_between, curves, params_in, wall_curves
 
 from bsslam.errors import SplineError
-from bsslam.spline import BSplineCurve, basis_functions, clamped_knots, closest_point, intersect_rays
+from bsslam.spline import BSplineCurve, basis_functions, clamped_knots, intersect_rays
 from bsslam.spline.batch import closest_points_batch
 
 SETTINGS = settings(max_examples=40, deadline=None)

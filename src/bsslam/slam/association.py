@@ -22,9 +22,7 @@ import numpy as np
 
 from bsslam.slam import kernels
 from bsslam.spline.batch import CurveBatch, CurveTable
-from bsslam.spline.closest import _MAX_NEWTON as _CLOSEST_MAX_NEWTON
-from bsslam.spline.closest import _STEP_TOLERANCE as _CLOSEST_STEP_TOLERANCE
-from bsslam.spline.closest import MAX_SAMPLES_PER_SPAN
+from bsslam.spline.batch import _CLOSEST_MAX_NEWTON, _CLOSEST_STEP_TOLERANCE, MAX_SAMPLES_PER_SPAN
 
 #: The closest-point searches' sampling (closest_points_batch's defaults, which association
 #: has always used): largest arc length between samples (m), fewest samples per piece.

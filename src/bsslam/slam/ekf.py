@@ -29,11 +29,17 @@ def gate_threshold(probability: float) -> float:
 
 
 def innovation_variances(P: np.ndarray | CovarianceColumns, cols: np.ndarray, H_c: np.ndarray,
-                         range_variance: float) -> np.ndarray:
+                         R: float | np.ndarray) -> np.ndarray:
     """(m,) diagonal of S = H P Hᵀ + R, for per-beam gating (m²); ``P`` is the (n, n)
-    covariance or its :class:`CovarianceColumns`."""
+    covariance or its :class:`CovarianceColumns`; R as :class:`StackedGain` takes it."""
     HP = H_c @ _columns_of(P).block(cols)
-    return np.einsum("ij,ij->i", HP, H_c) + range_variance
+    return np.einsum("ij,ij->i", HP, H_c) + _noise_diagonal(R)
+
+
+def _noise_diagonal(R: float | np.ndarray) -> float | np.ndarray:
+    """The measurement noise's variances: R itself when it is a scalar (R = r·I) or the
+    (m,) diagonal, the diagonal of an (m, m) R."""
+    return R.diagonal() if isinstance(R, np.ndarray) and R.ndim == 2 else R
 
 
 class CovarianceColumns:
@@ -113,6 +119,14 @@ class CovarianceColumns:
             return self._source.columns_times(cols, v)
         return self._source[:, cols] @ v
 
+    def innovation_variances(self, cols: np.ndarray, H_c: np.ndarray, R: float | np.ndarray) -> np.ndarray:
+        """(m,) diagonal of S = H P Hᵀ + R (:func:`innovation_variances`)."""
+        return innovation_variances(self, cols, H_c, R)
+
+    def gain(self, cols: np.ndarray, H_c: np.ndarray, R: float | np.ndarray) -> StackedGain:
+        """The :class:`StackedGain` of H (m, c) on ``cols`` with noise R, on these rows."""
+        return StackedGain(self, cols, H_c, R)
+
 
 class StackedGain:
     """``S = H P Hᵀ + R`` factorised once for a stacked linearisation, giving the mean
@@ -126,11 +140,16 @@ class StackedGain:
     outside the range of H only adds |ν⊥|²/r to the NIS. The QR costs 2mc² against the
     m³/3 + 2m²c of factorising S and solving with it, and the update's own QR of Y goes.
 
+    The compressed form needs R = r I. A diagonal R ((m,) variances) or a full (block) R
+    ((m, m), e.g. beams with correlated errors) takes the general path: S factorised in
+    the m-dimensional measurement space.
+
     Args:
         P: (n, n) prior covariance, or its :class:`CovarianceColumns`.
         cols: (c,) state indices that ``H`` touches.
         H_c: (m, c) the Jacobian restricted to ``cols``.
-        range_variance: R of one beam (m²).
+        range_variance: R: a scalar r for R = r I (m²), the (m,) diagonal of R, or the
+            (m, m) R.
 
     Attributes:
         L: lower Cholesky factor of S (m × m), or of S_c (c × c) when compressed.
@@ -138,7 +157,7 @@ class StackedGain:
     """
 
     def __init__(self, P: np.ndarray | CovarianceColumns, cols: np.ndarray, H_c: np.ndarray,
-                 range_variance: float):
+                 range_variance: float | np.ndarray):
         self.cols = cols
         self._columns = _columns_of(P)
         self._H_c = H_c
@@ -147,7 +166,8 @@ class StackedGain:
         self.P_c = self._columns.get(cols)
         P_cc = self.P_c[self._columns.position(cols)]
         m, c = H_c.shape
-        if m >= 2 * c:
+        scalar = not isinstance(range_variance, np.ndarray) or range_variance.ndim == 0
+        if scalar and m >= 2 * c:
             qr_, tau, _, info = dgeqrf(H_c)
             if info != 0:  # pragma: no cover - only for an invalid argument
                 raise FilterError(f"QR of the stacked Jacobian failed (geqrf info {info})")
@@ -159,7 +179,10 @@ class StackedGain:
             self._qr = None
             R_h = H_c
             S = (H_c @ P_cc) @ H_c.T
-        S.flat[:: S.shape[0] + 1] += range_variance     # the diagonal, without index arrays
+        if scalar or range_variance.ndim == 1:
+            S.flat[:: S.shape[0] + 1] += range_variance     # the diagonal, without index arrays
+        else:
+            S += range_variance
         if self._qr is None:
             self._S_diag = S.diagonal().copy()
         # LAPACK directly: the scipy.linalg front ends cost more than these small solves
@@ -174,7 +197,7 @@ class StackedGain:
         """(m,) the diagonal of S = H P Hᵀ + R: each beam's innovation variance (m²)."""
         if self._S_diag is None:
             P_cc = self.P_c[self._columns.position(self.cols)]
-            self._S_diag = np.einsum("ij,ij->i", self._H_c @ P_cc, self._H_c) + self._range_variance
+            self._S_diag = np.einsum("ij,ij->i", self._H_c @ P_cc, self._H_c) + _noise_diagonal(self._range_variance)
         return self._S_diag
 
     def _whiten(self, innovation: np.ndarray) -> tuple[np.ndarray, float]:
@@ -195,9 +218,10 @@ class StackedGain:
         w, outside = self._whiten(innovation)
         return self.P_c @ (self.Y.T @ w), float(w @ w) + outside
 
-    def state_correction(self, innovation: np.ndarray) -> np.ndarray:
-        """(n,) the mean correction P Hᵀ S⁻¹ ν on the whole state."""
-        return self._columns.times(self.cols, self.Y.T @ self._whiten(innovation)[0])
+    def state_correction(self, innovation: np.ndarray) -> tuple[np.ndarray, float]:
+        """(dx (n,), NIS): the mean correction P Hᵀ S⁻¹ ν on the whole state, and ν S⁻¹ ν."""
+        w, outside = self._whiten(innovation)
+        return self._columns.times(self.cols, self.Y.T @ w), float(w @ w) + outside
 
     def pose_variances(self, prior: np.ndarray) -> np.ndarray:
         """(3,) posterior variances of the pose under this gain, from its ``prior`` (3,)
@@ -209,16 +233,16 @@ class StackedGain:
         Z = self.Y @ self.P_c[:3].T          # (m, 3)
         return np.einsum("ij,ij->j", Z, Z)
 
-    def posterior_variances(self, P: np.ndarray | CovarianceColumns, cols: np.ndarray, H_c: np.ndarray,
-                            range_variance: float) -> np.ndarray:
+    def posterior_variances(self, cols: np.ndarray, H_c: np.ndarray, range_variance: float | np.ndarray
+                            ) -> np.ndarray:
         """(m,) variances H P⁺ Hᵀ + R of beams linearised on ``cols`` under the posterior
-        P⁺ = P − P Hᵀ S⁻¹ H P of this gain, without forming P⁺ beyond those columns.
-        ``P`` is the prior (n, n) or its :class:`CovarianceColumns`."""
-        P = _columns_of(P)
+        P⁺ = P − P Hᵀ S⁻¹ H P of this gain, without forming P⁺ beyond those columns
+        (``cols`` within the gain's working rows)."""
+        P = self._columns
         P_cg, P_cc = P.get(self.cols)[P.position(cols)], P.block(cols)
         Z = P_cg @ self.Y.T
         P_post = P_cc - Z @ Z.T
-        return np.einsum("ij,ij->i", H_c @ P_post, H_c) + range_variance
+        return np.einsum("ij,ij->i", H_c @ P_post, H_c) + _noise_diagonal(range_variance)
 
     def update_covariance(self, state: JointState) -> None:
         """P ← P − P Hᵀ S⁻¹ H P, as P − Z Zᵀ with the smaller of the two possible ranks,

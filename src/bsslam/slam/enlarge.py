@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bsslam.slam import enlarge_kernels
-from bsslam.slam.observation import laser_pose
+from bsslam.slam.measurement import laser_pose
 
 
 @dataclass(frozen=True)

@@ -1,34 +1,34 @@
 """BS-SLAM: the EKF with B-spline map features (paper §III).
 
-``SplineSLAM.step`` is the whole per-scan algorithm, in the paper's order:
-predict → segment and fit → associate → update → extend / add.
+``SplineSLAM.step`` is the whole per-scan algorithm, in the paper's order: predict →
+observe (segment and fit) → associate → update → re-associate → enlarge (extend / add) and
+prune. It works through three seams: the joint Gaussian is an
+:class:`~bsslam.slam.estimator.Estimator` (``state``), the map a
+:class:`~bsslam.slam.spline_map.SplineMap` (``spline_map``), and the ranges a
+:class:`~bsslam.slam.measurement.MeasurementModel` (``measurement``).
 """
 
 from __future__ import annotations
 
-import functools
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from bsslam.config import SLAMConfig
-from bsslam.errors import FilterError, FitError, InputError
+from bsslam.errors import FitError, InputError
 from bsslam.scan import LaserScan, ObservedSpline, ScanFeatures, extract_splines
 from bsslam.scan.refine import refine_for_map
-from bsslam.slam import beam_kernels, range_kernels
 from bsslam.slam.association import Match, associate_curves, association_thresholds
-from bsslam.slam.ekf import CovarianceColumns, StackedGain, gate_threshold, innovation_variances
+from bsslam.slam.ekf import gate_threshold
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
+from bsslam.slam.estimator import CompressedEKF, Estimator
 from bsslam.slam.features import MapSpline, SplineFeature
-from bsslam.slam.kernels import association_frame
-from bsslam.slam.map_curves import MapCurves
-from bsslam.slam.motion import motion_noise, predict_state
-from bsslam.slam.observation import laser_pose, linearize_beams
-from bsslam.slam.state import POSE, JointState
+from bsslam.slam.measurement import RangeModel, laser_pose
+from bsslam.slam.motion import motion_noise
+from bsslam.slam.spline_map import SplineMap
+from bsslam.slam.state import POSE
 from bsslam.spline import FitResult, extend_curve, fit_curve
-from bsslam.spline.batch import CurveTable, closest_points_batch, curve_table
-from bsslam.trajectory import wrap_angle
+from bsslam.spline.batch import closest_points_batch, curve_table
 
 
 @dataclass
@@ -73,44 +73,6 @@ class StepReport:
             self.beams_dropped[reason] = self.beams_dropped.get(reason, 0) + int(count)
 
 
-@dataclass(frozen=True)
-class _Linearization:
-    """Stacked ranges and Jacobian of the beams of one scan at one estimate.
-
-    Attributes:
-        cols: (c,) touched state indices; H_c: (m, c); residual: (m,) z − h(x) (m);
-        beam: (m,) the beam (index into the linearised :class:`_Beams`) of each row;
-        hit_t: (m,) map-spline parameter of each hit (m).
-    """
-
-    cols: np.ndarray
-    H_c: np.ndarray
-    residual: np.ndarray
-    beam: np.ndarray
-    hit_t: np.ndarray
-
-
-@dataclass(frozen=True, eq=False)
-class _Beams:
-    """The beams of one scan assigned to map splines, each (k,).
-
-    Attributes:
-        curve: index of each beam's map spline in the filter's :class:`MapCurves` table.
-        bearings: robot-frame bearings (rad); ranges: measured ranges (m);
-        t0: Newton start on the map spline (m).
-    """
-
-    curve: np.ndarray
-    bearings: np.ndarray
-    ranges: np.ndarray
-    t0: np.ndarray
-
-    @functools.cached_property
-    def used_curves(self) -> np.ndarray:
-        """The distinct map splines of the beams (increasing)."""
-        return range_kernels.used_curves(self.curve)
-
-
 class SplineSLAM:
     """EKF-SLAM with B-spline features, usable from Python without the CLI.
 
@@ -120,21 +82,21 @@ class SplineSLAM:
     """
 
     def __init__(self, config: SLAMConfig | None = None, initial_pose=(0.0, 0.0, 0.0),
-                 initial_covariance: np.ndarray | None = None):
+                 initial_covariance: np.ndarray | None = None, estimator=CompressedEKF):
+        """``estimator``: the class of the joint Gaussian (an :class:`Estimator`, built from
+        the initial pose (3,) and its covariance (3, 3))."""
         self.config = config or SLAMConfig()
         if initial_covariance is None:
             initial_covariance = np.diag(np.square(self.config.initial_pose_sigma))
-        self.state = JointState(np.asarray(initial_pose, dtype=float), np.asarray(initial_covariance, dtype=float))
-        self.features: dict[int, SplineFeature] = {}
+        self.state: Estimator = estimator(np.asarray(initial_pose, dtype=float),
+                                          np.asarray(initial_covariance, dtype=float))
+        self.spline_map = SplineMap()
         self.steps = 0
-        self._next_id = 0
-        self._map: MapCurves | None = None  # batch table of the map splines, see _map_curves
-        self._map_added: list[SplineFeature] = []   # features added since it was built
         self._features: ScanFeatures | None = None   # the current scan's
-        self._unconfirmed: list[int] = []   # splines no update has used yet, oldest first (see _prune)
         self._gate = gate_threshold(self.config.observation.gate_probability)
         self._loose_gate = gate_threshold(1.0 - (1.0 - self.config.observation.gate_probability) / 100.0)
         self._build_map = True
+        self.measurement = RangeModel(self.config.observation)
 
     @classmethod
     def in_fixed_map(cls, splines: list[MapSpline], config: SLAMConfig | None = None,
@@ -150,13 +112,18 @@ class SplineSLAM:
         slam = cls(config, initial_pose, initial_covariance)
         for spline in splines:
             c = spline.curve
-            feature = SplineFeature(slam._new_id(), c.degree, c.knots.copy(),
+            feature = SplineFeature(slam.spline_map.new_id(), c.degree, c.knots.copy(),
                                     fixed_control_points=np.array(c.control_points, dtype=float))
             slam.features[feature.id] = feature
         slam._build_map = False
         return slam
 
     # -- public views -------------------------------------------------------------------
+    @property
+    def features(self) -> dict[int, SplineFeature]:
+        """The map splines by id (insertion order)."""
+        return self.spline_map.features
+
     @property
     def pose(self) -> np.ndarray:
         """(3,) current pose estimate (x m, y m, φ rad)."""
@@ -185,11 +152,6 @@ class SplineSLAM:
             out.append(MapSpline(f.id, f.curve(x), cov))
         return out
 
-    @property
-    def _range_variance(self) -> float:
-        obs = self.config.observation
-        return (obs.sigma_range_m ** 2 + obs.sigma_model_m ** 2) * obs.r_inflation
-
     # -- the algorithm ------------------------------------------------------------------
     def step(self, odometry_delta, scan: LaserScan, laser_offset=None,
              odometry_covariance=None, features: ScanFeatures | None = None) -> StepReport:
@@ -207,17 +169,7 @@ class SplineSLAM:
         """
         offset = np.zeros(3) if laser_offset is None else np.asarray(laser_offset, dtype=float)
         report = StepReport()
-        if odometry_delta is not None:
-            delta = np.asarray(odometry_delta, dtype=float).reshape(-1)
-            if delta.shape != (3,) or not np.all(np.isfinite(delta)):
-                raise InputError(f"odometry increment must be 3 finite numbers, got {odometry_delta!r}")
-            if odometry_covariance is None:
-                Q = motion_noise(delta, self.config.motion)
-            else:
-                Q = np.asarray(odometry_covariance, dtype=float)
-                if Q.shape != (3, 3) or not np.all(np.isfinite(Q)) or np.any(np.linalg.eigvalsh(0.5 * (Q + Q.T)) < 0):
-                    raise InputError(f"odometry covariance must be a 3×3 positive semi-definite matrix, got {Q!r}")
-            predict_state(self.state, delta, Q)
+        self._predict(odometry_delta, odometry_covariance)
         observed = self._observe(scan, report, features)
         matches = self._associate(observed, offset)
         self._update(observed, matches, offset, report)
@@ -229,6 +181,22 @@ class SplineSLAM:
         report.state_size = self.state.size
         return report
 
+    def _predict(self, odometry_delta, odometry_covariance) -> None:
+        """The motion update: the estimator moves the pose by the checked increment, with the
+        given covariance or the configured noise model's (nothing when the increment is None)."""
+        if odometry_delta is None:
+            return
+        delta = np.asarray(odometry_delta, dtype=float).reshape(-1)
+        if delta.shape != (3,) or not np.all(np.isfinite(delta)):
+            raise InputError(f"odometry increment must be 3 finite numbers, got {odometry_delta!r}")
+        if odometry_covariance is None:
+            Q = motion_noise(delta, self.config.motion)
+        else:
+            Q = np.asarray(odometry_covariance, dtype=float)
+            if Q.shape != (3, 3) or not np.all(np.isfinite(Q)) or np.any(np.linalg.eigvalsh(0.5 * (Q + Q.T)) < 0):
+                raise InputError(f"odometry covariance must be a 3×3 positive semi-definite matrix, got {Q!r}")
+        self.state.predict(delta, Q)
+
     def _observe(self, scan: LaserScan, report: StepReport, features: ScanFeatures | None) -> list[ObservedSpline]:
         if features is None:
             features = extract_splines(scan, self.config)
@@ -238,40 +206,9 @@ class SplineSLAM:
         report.observed_splines = len(features.splines)
         return features.splines
 
-    def _map_curves(self) -> MapCurves | None:
-        """The map splines' batch table. It is built once and then kept up to date: splines
-        added join it at the next use (:meth:`_map_grew`), an extended spline's rows are
-        replaced (:meth:`_map_extended`), removed splines' rows taken out
-        (:meth:`remove_features`), each the table a rebuild would give, bit for bit."""
-        if not self.features:
-            return None
-        if self._map is None:
-            self._map = MapCurves(list(self.features.values()))
-            self._map_added.clear()
-        self._merge_added()
-        return self._map
-
-    def _merge_added(self) -> None:
-        """The splines added since the table was last brought up to date join it."""
-        if self._map is not None and self._map_added:
-            self._map = self._map.with_added(self._map_added)
-        self._map_added.clear()
-
-    def _map_extended(self, feature: SplineFeature, table: CurveTable) -> None:
-        """``feature`` was extended (new knots, state rows): its rows of the map table are
-        replaced by ``table``, its own one-curve table."""
-        if self._map is not None:
-            self._merge_added()
-            self._map = self._map.with_replaced(feature, table)
-
-    def _map_grew(self, feature: SplineFeature) -> None:
-        """A spline was added (after all others, in ``features`` order): it joins the table."""
-        if self._map is not None:
-            self._map_added.append(feature)
-
     def _associate(self, observed: list[ObservedSpline], offset: np.ndarray) -> list[list[Match]]:
         cfg = self.config.association
-        mc = self._map_curves()
+        mc = self.spline_map.curves()
         if mc is None or not observed:
             return [[] for _ in observed]
         state = self.state
@@ -292,9 +229,8 @@ class SplineSLAM:
         # back carry the same error, and gates grown by it all reach their 1 m cap in the
         # ACES corridors.
         mt, cp = mc.table, mc.control_points(state.x)
-        candidates, near, J, map_coeffs_t, world_coeffs_t = association_frame(
-            cp, mt.cp_start, mt.power_basis, mt.window, mt.piece_start, mc.state_rows, world, table.cp_start,
-            table.power_basis, table.window, table.piece_start, lp, cfg.map_radius_m ** 2, pose)
+        candidates, near, J, map_coeffs_t, world_coeffs_t = mc.association_frame(
+            cp, world, table, lp, cfg.map_radius_m ** 2, pose)
         if candidates.size == 0:
             return [[] for _ in observed]
         fixed = near[:, 0] < 0
@@ -323,111 +259,92 @@ class SplineSLAM:
             for i, m in zip(lost, found):
                 matches[i] = m
 
-    def _beam_groups(self, observed: list[ObservedSpline], matches: list[list[Match]]) -> _Beams | None:
-        """The beams of the matched intervals, each with its map spline and Newton start;
-        a beam inside several matched intervals goes to the first (by ``u_ini``).
-
-        The matches and the matched splines' beams go to one compiled call
-        (:func:`beam_kernels.beam_groups`) as a table and one array: a loop over them here
-        was about a hundred numpy calls a scan."""
-        mc = self._map   # validated by the _associate that produced ``matches`` (None if there are none)
-        table = [(i, obs.params.shape[0], m.u_ini, m.u_fin, m.t_ini, m.t_fin, mc.index[m.feature_id])
-                 for i, (obs, obs_matches) in enumerate(zip(observed, matches)) for m in obs_matches]
-        if not table:
-            return None
-        beams = np.concatenate([a for obs, obs_matches in zip(observed, matches) if obs_matches
-                                for a in (obs.params, obs.angles, obs.ranges)])
-        curve, values = beam_kernels.beam_groups(np.array(table, dtype=float), beams,
-                                                 self.config.observation.beam_stride)
-        if curve.shape[0] == 0:
-            return None
-        return _Beams(curve, values[0], values[1], values[2])
-
-    def _linearize(self, beams: _Beams, x: np.ndarray, offset: np.ndarray,
-                   report: StepReport | None) -> _Linearization | None:
-        """Predicted ranges and the stacked Jacobian of every beam at the estimate ``x``, in
-        one compiled call over all the beams' map splines (:func:`linearize_beams`).
-
-        Beams that miss their spline or hit it at grazing incidence are dropped (and
-        counted when ``report`` is given). Returns None when no beam is left.
-        """
-        cols, H_c, residual, rows, hit_t, missed, grazing = linearize_beams(
-            self._map, x, offset, beams.curve, beams.bearings, beams.ranges, beams.t0,   # map: validated by _associate
-            math.tan(self.config.observation.max_incidence_rad))
-        if report is not None:
-            report.drop("missed", missed)
-            report.drop("grazing", grazing)
-        if rows.size == 0:
-            return None
-        return _Linearization(cols, H_c, residual, rows, hit_t)
-
-    @staticmethod
-    def _select(beams: _Beams, lin: _Linearization, keep: np.ndarray) -> tuple[_Beams, _Linearization]:
-        """The beams and their linearisation restricted to the rows in ``keep``, Newton
-        restarted from the rows' last hit parameters (one compiled call for the copies)."""
-        index, values, H_c = beam_kernels.select_rows(keep, lin.beam, beams.curve, beams.bearings, beams.ranges,
-                                                      lin.H_c, lin.residual, lin.hit_t)
-        return (_Beams(index[0], values[0], values[1], values[2]),
-                _Linearization(lin.cols, H_c, values[3], index[1], values[4]))
-
     def _update(self, observed, matches, offset, report: StepReport) -> None:
-        """Iterated EKF update (Gauss–Newton on the mean, one covariance update at the end).
+        """Iterated EKF update (Gauss–Newton on the mean, one covariance update at the end):
+        the matched beams linearised at the prior, gated (:meth:`_gated`), iterated
+        (:meth:`_iterate`), and the estimator updated with the last linearisation.
 
         The paper's filter linearises once. Relinearising the range model at the corrected
         estimate costs a gain and a linearisation per iteration, the corrections computed on
         the working rows only (the pose and the beams' splines; the whole state is corrected
         once, at the end), and removes most of the linearisation error after a poorly
-        predicted turn, which is where the single-step filter becomes inconsistent. The
-        iterations stop once a step moves every pose component by less than
-        ``observation.iteration_tolerance`` of its posterior σ.
+        predicted turn, which is where the single-step filter becomes inconsistent.
         """
-        beams = self._beam_groups(observed, matches)
+        model, mc = self.measurement, self.spline_map.table   # the map: validated by the _associate that gave ``matches``
+        beams = model.beams(observed, matches, mc)
         report.matched_splines += sum(1 for m in matches if m)
         if beams is None:
             return
-        mc = self._map
-        R = self._range_variance
         x0 = self.state.x.copy()
-        lin = self._linearize(beams, x0, offset, report)
+        lin = model.linearize(beams, mc, x0, offset, report)
         if lin is None:
             return
-        # Gating at the prior alone is biased: every innovation carries the same pose error,
-        # so after a poorly predicted step a tight gate drops exactly the beams that disagree
-        # with the prior. Gross outliers go first (loose gate at the prior); the real gate is
-        # applied at the first corrected estimate with posterior variances.
         # the entries a relinearisation reads: the pose and the beams' splines (the subsets
-        # selected below keep to these curves); the rest of the state is corrected once, at the end
+        # the gates select keep to these curves); the rest of the state is corrected once, at the end
         work = np.concatenate([POSE, mc.state_indices(beams.used_curves, self.state.size)])
-        columns = CovarianceColumns(self.state, work)   # P[work, cols], without folding the pending update
-        s_diag = innovation_variances(columns, lin.cols, lin.H_c, R)
+        window = self.state.window(work)
+        gated = self._gated(beams, lin, window, x0, work, offset, report)
+        if gated is None:
+            return
+        iterated = self._iterate(*gated, window, x0, work, offset)
+        if iterated is None:
+            return
+        beams, lin, nu, gain = iterated
+        innovation = self.state.update(lin.cols, lin.H_c, nu, lin.R, gain)
+        for c in beams.used_curves:
+            mc.features[c].observations += 1
+        report.innovations = np.concatenate([report.innovations, nu])
+        report.innovation_variances = np.concatenate([report.innovation_variances, innovation.variances])
+        report.nis += innovation.nis
+        report.nis_dof += int(nu.shape[0])
+        report.beams_used = report.nis_dof
+
+    def _gated(self, beams, lin, window, x0, work, offset, report: StepReport):
+        """The beams whose innovations pass the gates, linearised at the first corrected
+        estimate x_i: ``(beams, lin, x_i)``, or None when none is left.
+
+        Gating at the prior alone is biased: every innovation carries the same pose error,
+        so after a poorly predicted step a tight gate drops exactly the beams that disagree
+        with the prior. Gross outliers go first (loose gate at the prior); the real gate is
+        applied at the first corrected estimate with posterior variances."""
+        model, mc = self.measurement, self.spline_map.table
+        s_diag = window.innovation_variances(lin.cols, lin.H_c, lin.R)
         coarse = lin.residual ** 2 <= self._loose_gate * s_diag
         report.drop("gate", int((~coarse).sum()))
         if not coarse.any():
-            return
-        beams, lin = self._select(beams, lin, coarse)
-        gain = StackedGain(columns, lin.cols, lin.H_c, R)
+            return None
+        beams, lin = model.select(beams, lin, coarse)
+        gain = window.gain(lin.cols, lin.H_c, lin.R)
         x_i = x0.copy()
         x_i[work] += gain.correction(lin.residual)[0]
-        lin = self._linearize(beams, x_i, offset, None)
+        lin = model.linearize(beams, mc, x_i, offset)
         if lin is None:
-            return
-        fine = lin.residual ** 2 <= self._gate * gain.posterior_variances(columns, lin.cols, lin.H_c, R)
+            return None
+        fine = lin.residual ** 2 <= self._gate * gain.posterior_variances(lin.cols, lin.H_c, lin.R)
         report.drop("gate", int((~fine).sum()))
         if not fine.any():
-            return
-        beams, lin = self._select(beams, lin, fine)
+            return None
+        beams, lin = model.select(beams, lin, fine)
+        return beams, lin, x_i
+
+    def _iterate(self, beams, lin, x_i, window, x0, work, offset):
+        """Gauss–Newton on the mean from x_i, on the working rows: ``(beams, lin, ν, gain)``
+        of the last iteration (ν the IEKF innovation at x_i), or None when every beam is
+        lost. The iterations stop once a step moves every pose component by less than
+        ``observation.iteration_tolerance`` of its posterior σ."""
+        model, mc = self.measurement, self.spline_map.table
         tolerance = self.config.observation.iteration_tolerance
         prior_pose_var = np.diag(self.state.pose_covariance)
         for it in range(self.config.observation.iterations):
             if it:
-                lin = self._linearize(beams, x_i, offset, None)
+                lin = model.linearize(beams, mc, x_i, offset)
                 if lin is None:
-                    return
-                beams, lin = self._select(beams, lin, np.ones(lin.residual.shape[0], dtype=bool))
-            gain = StackedGain(columns, lin.cols, lin.H_c, R)
+                    return None
+                beams, lin = model.select(beams, lin, np.ones(lin.residual.shape[0], dtype=bool))
+            gain = window.gain(lin.cols, lin.H_c, lin.R)
             # IEKF: ν_i = z − h(x_i) − H_i (x₀ − x_i)
             nu = lin.residual - lin.H_c @ (x0[lin.cols] - x_i[lin.cols])
-            dx, nis = gain.correction(nu)
+            dx, _ = gain.correction(nu)
             x_new = x0.copy()
             x_new[work] += dx
             step = np.abs(x_new[:3] - x_i[:3])
@@ -437,16 +354,7 @@ class SplineSLAM:
             # hundredths of σ, and every further iteration costs a linearisation and a gain
             if np.all(step <= tolerance * np.sqrt(gain.pose_variances(prior_pose_var))):
                 break
-        self.state.x[:] = x0 + gain.state_correction(nu)
-        gain.update_covariance(self.state)
-        self.state.x[2] = wrap_angle(self.state.x[2])
-        for c in beams.used_curves:
-            mc.features[c].observations += 1
-        report.innovations = np.concatenate([report.innovations, nu])
-        report.innovation_variances = np.concatenate([report.innovation_variances, gain.S_diag])
-        report.nis += nis
-        report.nis_dof += int(nu.shape[0])
-        report.beams_used = report.nis_dof
+        return beams, lin, nu, gain
 
     # -- map enlargement ----------------------------------------------------------------
     def _enlarge(self, observed, matches, offset, report: StepReport) -> None:
@@ -480,10 +388,6 @@ class SplineSLAM:
                 if self._add_feature(obs, sel, offset, refit=True):
                     report.new_splines += 1
 
-    def _new_id(self) -> int:
-        self._next_id += 1
-        return self._next_id - 1
-
     def _add_feature(self, obs: ObservedSpline, sel: np.ndarray, offset: np.ndarray, refit: bool = False) -> bool:
         cfg = self.config
         if refit:
@@ -502,15 +406,13 @@ class SplineSLAM:
         bp = beam_points(self.state.pose, offset, obs.angles[sel], obs.ranges[sel])
         block = new_feature_block(phi, bp)
         n = phi.shape[0]
-        feature = SplineFeature(self._new_id(), obs.curve.degree, knots.copy(), created=self.steps)
+        feature = SplineFeature(self.spline_map.new_id(), obs.curve.degree, knots.copy(), created=self.steps)
         if cfg.mode == "localization":
             feature.fixed_control_points = block.mean.reshape(2, n).T.copy()
         else:
-            idx = self.state.append_dependent(block.mean, block.cols, block.J, block.noise(self._range_variance))
+            idx = self.state.append(block.mean, block.cols, block.J, block.noise(self.measurement.R))
             feature.idx_x, feature.idx_y = idx[:n], idx[n:]
-        self.features[feature.id] = feature
-        self._unconfirmed.append(feature.id)
-        self._map_grew(feature)
+        self.spline_map.add(feature)
         return True
 
     def _extend_feature(self, f: SplineFeature, obs: ObservedSpline, match: Match, side: str,
@@ -537,10 +439,10 @@ class SplineSLAM:
         if not f.in_state:
             f.fixed_control_points = ext.curve.control_points.copy()
             f.knots = ext.curve.knots.copy()
-            self._map_extended(f, fitted.table)
+            self.spline_map.extended(f, fitted.table)
             return True
         block = extension_block(new_rows, n_old, f.idx_x, f.idx_y, curve.control_points, bp)
-        new_idx = self.state.append_dependent(block.mean, block.cols, block.J, block.noise(self._range_variance))
+        new_idx = self.state.append(block.mean, block.cols, block.J, block.noise(self.measurement.R))
         self.state.transform(f.idx_x, ext.T)    # x[idx] ← T x[idx], P ← T P Tᵀ on that block
         self.state.transform(f.idx_y, ext.T)
         new_x, new_y = new_idx[:m], new_idx[m:]
@@ -549,7 +451,7 @@ class SplineSLAM:
         else:
             f.idx_x, f.idx_y = np.concatenate([new_x, f.idx_x]), np.concatenate([new_y, f.idx_y])
         f.knots = ext.curve.knots.copy()
-        self._map_extended(f, fitted.table)
+        self.spline_map.extended(f, fitted.table)
         return True
 
     def _prune(self) -> int:
@@ -558,13 +460,7 @@ class SplineSLAM:
         after = self.config.mapping.prune_after_scans
         if not after:
             return 0
-        # A spline once used stays, so the candidates are the splines of the last ``after``
-        # scans that no update has used yet (``_unconfirmed``): a pass over the whole map each
-        # scan cost 0.1 ms at 150 splines.
-        waiting = [self.features[i] for i in self._unconfirmed if i in self.features]
-        waiting = [f for f in waiting if f.observations == 0]
-        stale = [f.id for f in waiting if self.steps - f.created >= after]
-        self._unconfirmed = [f.id for f in waiting if self.steps - f.created < after]
+        stale = self.spline_map.stale(self.steps, after)
         self.remove_features(stale)
         return len(stale)
 
@@ -574,19 +470,7 @@ class SplineSLAM:
 
     def remove_features(self, feature_ids) -> None:
         """Delete map splines and their rows/columns of the state, compacting P once."""
-        removed = [self.features.pop(fid) for fid in feature_ids]
-        if not removed:
-            return
-        idx = [f.state_indices for f in removed if f.in_state]
-        mapping = self.state.remove(np.concatenate(idx)) if idx else None
-        if self._map is not None:   # the table, with the splines added since, drops their rows
-            self._merge_added()
-            self._map = self._map.without([f.id for f in removed], mapping)
-        if mapping is None:
-            return
-        kept = [g for g in self.features.values() if g.in_state]
-        for g in kept:
-            g.idx_x, g.idx_y = mapping[g.idx_x], mapping[g.idx_y]
-        # one check for all: a per-feature test cost more than the whole removal
-        if kept and np.concatenate([g.idx_x for g in kept] + [g.idx_y for g in kept]).min() < 0:  # pragma: no cover - disjoint
-            raise FilterError("feature indices overlapped")
+        feature_ids = list(feature_ids)
+        rows = self.spline_map.state_indices(feature_ids)
+        mapping = self.state.remove(rows) if rows is not None else None
+        self.spline_map.remove(feature_ids, mapping)

@@ -15,9 +15,11 @@ import functools
 
 import numpy as np
 
+from bsslam.slam import range_kernels
 from bsslam.slam.features import SplineFeature
-from bsslam.slam.kernels import curve_state_indices
+from bsslam.slam.kernels import association_frame, curve_state_indices
 from bsslam.spline.batch import CurveTable, concat_tables, curve_table, kept_rows, take_curves
+from bsslam.spline.intersect import _MAX_NEWTON, _MAX_REFINE, _ROOT_TOLERANCE_M, _STEP_TOLERANCE, _unit_grid
 
 
 class MapCurves:
@@ -111,6 +113,57 @@ class MapCurves:
         if not self._all_in_state:
             cp = np.where(self._in_state[:, None], cp, self._fixed)
         return cp
+
+    # -- the compiled searches on the table ---------------------------------------------
+    def association_frame(self, cp: np.ndarray, world: np.ndarray, observed: CurveTable, laser_pose: np.ndarray,
+                          radius2: float, pose: np.ndarray):
+        """The candidate pairs of observed and map splines and what the association gates
+        need of them, in one compiled call (:func:`~bsslam.slam.kernels.association_frame`).
+
+        Args:
+            cp: (N, 2) the map's control points (:meth:`control_points`) (m).
+            world: (M, 2) the observed splines' control points in the world frame (m);
+                observed: their table.
+            laser_pose: (3,) (m, m, rad); radius2: squared map radius (m²); pose: (3,) the
+                robot pose.
+        Returns:
+            ``(candidates, near, J, map_coeffs_t, world_coeffs_t)`` as the kernel gives them.
+        """
+        t = self.table
+        return association_frame(cp, t.cp_start, t.power_basis, t.window, t.piece_start, self.state_rows, world,
+                                 observed.cp_start, observed.power_basis, observed.window, observed.piece_start,
+                                 laser_pose, radius2, pose)
+
+    def linearize(self, x: np.ndarray, laser_offset: np.ndarray, curve: np.ndarray, bearings: np.ndarray,
+                  ranges: np.ndarray, t0: np.ndarray, max_tan: float, max_range: float = np.inf):
+        """The linearisation of m beams at the state mean ``x`` (n,): each beam with
+        robot-frame bearing ``bearings[j]`` (rad) and measured range ``ranges[j]`` (m) against
+        map curve ``curve[j]``, Newton from ``t0[j]`` (m). Beams that miss their curve
+        (within ``max_range``) or hit it with a tangent ratio |r| > ``max_tan`` (grazing) are
+        dropped.
+
+        All the beams' curves at once at the pose ``x[:3]``, stacked over ``state_rows``, in
+        one compiled call (:func:`bsslam.slam.range_kernels.linearize_beams`); the tests check
+        it bit for bit against the numpy observation model it replaced
+        (``tests/slam/observation_oracle.py``).
+
+        Returns:
+            ``(cols, H_c, residual, rows, hit_t, missed, grazing)``: the pose indices 0, 1, 2
+            then the touched state indices (c,); the Jacobian (k, c) of the k kept beams
+            ``rows`` (k,) (increasing); their residuals z − h(x) (k,) (m) and hit parameters
+            (k,) (m); the counts of missed and grazing beams.
+        """
+        phi = x[2]
+        cos_phi, sin_phi = np.cos(phi), np.sin(phi)
+        # computed once: the intersection and the Jacobian use the same numbers
+        mu = (phi + laser_offset[2]) + bearings
+        cos_mu, sin_mu = np.cos(mu), np.sin(mu)
+        t = self.table
+        missed, grazing, cols, H_c, rows, values = range_kernels.linearize_beams(
+            x, self.state_rows, self._fixed, t.power_basis, t.window, t.real, t.piece_lo, t.width, t.piece_start,
+            t.lo, t.hi, curve, ranges, t0, cos_mu, sin_mu, cos_phi, sin_phi, laser_offset, max_tan, max_range,
+            _MAX_NEWTON, _STEP_TOLERANCE, _ROOT_TOLERANCE_M, _unit_grid(8), _MAX_REFINE)
+        return cols, H_c, values[0], rows, values[1], missed, grazing
 
 
 def _rows_of(features: list[SplineFeature]) -> tuple[np.ndarray, np.ndarray]:

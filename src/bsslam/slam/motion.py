@@ -16,14 +16,23 @@ if TYPE_CHECKING:
     from bsslam.slam.state import JointState
 
 
+def motion_sigmas(increments: np.ndarray, cfg: MotionNoiseConfig) -> np.ndarray:
+    """(..., 3) odometry noise σ of robot-frame increments (..., 3) (Δx m, Δy m, Δφ rad):
+    σ = a + b·|Δ| per component (paper §IV), plus an optional heading term proportional to
+    the distance travelled: ``σ_x = a_xy + b_xy|Δx|``, ``σ_y = a_xy + b_xy|Δy|``,
+    ``σ_φ = a_φ + b_φ|Δφ| + b_φ/m·|(Δx, Δy)|`` (m, m, rad)."""
+    inc = np.asarray(increments, dtype=float)
+    sigma = np.empty_like(inc)
+    sigma[..., :2] = cfg.a_xy_m + cfg.b_xy * np.abs(inc[..., :2])
+    sigma[..., 2] = (cfg.a_phi_rad + cfg.b_phi * np.abs(inc[..., 2])
+                     + cfg.b_phi_per_m_rad * np.hypot(inc[..., 0], inc[..., 1]))
+    return sigma
+
+
 def motion_noise(delta: np.ndarray, cfg: MotionNoiseConfig) -> np.ndarray:
-    """Q (3×3): σ = a + b·|Δ| per component (paper §IV), plus an optional heading term
-    proportional to the distance travelled."""
-    dist = float(np.hypot(delta[0], delta[1]))
-    sx = cfg.a_xy_m + cfg.b_xy * abs(delta[0])
-    sy = cfg.a_xy_m + cfg.b_xy * abs(delta[1])
-    sphi = cfg.a_phi_rad + cfg.b_phi * abs(delta[2]) + cfg.b_phi_per_m_rad * dist
-    return np.diag([sx * sx, sy * sy, sphi * sphi])
+    """Q (3×3) of one increment (3,): diag(σ²) of :func:`motion_sigmas`."""
+    sigma = motion_sigmas(delta, cfg)
+    return np.diag(sigma * sigma)
 
 
 def predict_state(state: JointState, delta: np.ndarray, Q: np.ndarray) -> np.ndarray:

@@ -110,7 +110,7 @@ def linearize_beams(x, state_rows, fixed, power_basis, window, real, piece_lo, w
     """
     m = curve.shape[0]
     coeffs_t = used_coefficients(x, state_rows, fixed, power_basis, window, piece_start, curve)
-    # the laser's position, as bsslam.slam.observation.laser_pose sums it; one for all rays
+    # the laser's position, as bsslam.slam.measurement.laser_pose sums it; one for all rays
     ox = np.empty(1)
     oy = np.empty(1)
     ox[0] = x[0] + cos_phi * offset[0] - sin_phi * offset[1]
@@ -299,7 +299,7 @@ def _poly_derivative(c, q, x):
 def stack_ranges(hits, n_state, state_rows, power_basis, window, real, piece_lo, piece_start, lo, hi, curve,
                  ranges, cos_mu, sin_mu, cos_phi, sin_phi, offset, max_tan):
     """The linearisation of m beams from their hits: the masks, the range Jacobians of
-    ``observation._range_jacobians`` and the stacked Jacobian of the kept beams.
+    ``_range_jacobians`` (tests/slam/observation_oracle.py) and the stacked Jacobian of the kept beams.
 
     Args:
         hits: (4, m) rows t, range, x̃', ỹ' of each beam's hit, NaN where it has none.

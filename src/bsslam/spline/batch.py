@@ -26,8 +26,10 @@ Curves may differ in degree: the table is padded to the largest degree p with ze
 coefficients (which Horner evaluates exactly), and a padded piece's control-point window
 repeats its last real control point with zero weight.
 
-The closest-point search follows :func:`bsslam.spline.closest_point` step for step (same
-starts, iterations, tolerances and acceptance tests); results agree with it up to rounding.
+The closest-point search (:func:`closest_points_batch`, also behind the one-curve
+:func:`bsslam.spline.closest_point`) follows the numpy form it replaced step for step (same
+starts, iterations, tolerances and acceptance tests; ``tests/spline/closest_oracle.py``);
+results agree with it up to rounding.
 
 Where each beam hits its map spline is asked of the table's arrays directly by the filter's
 compiled linearisation (:func:`bsslam.slam.range_kernels.linearize_beams`). The numpy ray
@@ -45,10 +47,15 @@ import numpy as np
 
 from bsslam.errors import SplineError
 from bsslam.spline import kernels
-from bsslam.spline.closest import MAX_SAMPLES_PER_SPAN
-from bsslam.spline.closest import _MAX_NEWTON as _CLOSEST_MAX_NEWTON
-from bsslam.spline.closest import _STEP_TOLERANCE as _CLOSEST_STEP_TOLERANCE
 from bsslam.spline.pieces import horner_with_derivatives
+
+#: The closest-point search: Newton iterations per start, and its step tolerance (a fraction
+#: of the curve's domain).
+_CLOSEST_MAX_NEWTON = 30
+_CLOSEST_STEP_TOLERANCE = 1e-13
+#: Most coarse samples per piece: a wildly long control polygon (a diverged estimate) must
+#: cost bounded memory.
+MAX_SAMPLES_PER_SPAN = 256
 
 
 @dataclass(frozen=True, eq=False)
@@ -300,8 +307,9 @@ def _search(keys: np.ndarray, curve: np.ndarray, t: np.ndarray) -> np.ndarray:
 def closest_points_batch(batch: CurveBatch, curve: np.ndarray, queries: np.ndarray,
                          t0: np.ndarray | None = None, *, sample_step_m: float = 0.1,
                          samples_per_span: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Point of its own curve nearest to each query point: :func:`bsslam.spline.closest_point`
-    for queries that each name their curve (same sampling, starts and Newton).
+    """Point of its own curve nearest to each query point, for queries that each name their
+    curve: the search :func:`bsslam.spline.closest_point` describes (coarse sampling, Newton
+    from the sampled minima and their neighbours).
 
     Args:
         batch: the curves.

@@ -1,0 +1,164 @@
+"""The measurement model: laser ranges against the map's splines (paper §III-D, spec §6).
+
+A beam assigned to a map spline measures the distance from the laser, along the beam, to
+where the spline crosses it. :class:`RangeModel` takes the matched intervals of a scan to
+the beams (:meth:`RangeModel.beams`) and linearises those at a state mean into the stacked
+``(cols, H, residual, R)`` an :class:`~bsslam.slam.estimator.Estimator` updates with
+(:meth:`RangeModel.linearize`); :meth:`RangeModel.select` keeps the rows the gates pass.
+The range and its Jacobians (22)–(27) are computed by one compiled call over all the beams'
+splines (:meth:`bsslam.slam.map_curves.MapCurves.linearize`); the numpy form it replaced is
+the tests' oracle (``tests/slam/observation_oracle.py``).
+
+The laser sits at ``laser_offset`` (x m, y m, φ rad) in the robot frame. For a beam with
+bearing τ the world beam angle is μ = φ + φ_o + τ and the beam starts at
+``p_l = t_r + R(φ) o``. The predicted range z is where the spline, moved into the beam
+frame, crosses the beam's x-axis. With the tangent ratio ``r = x̃'(t*)/ỹ'(t*)``:
+
+* ∂z/∂p_l = g = (−cos μ − r sin μ, −sin μ + r cos μ);
+* ∂z/∂μ = z·r, so ∂z/∂φ = z·r + g·R'(φ)·o (the lever arm of an offset laser);
+* ∂z/∂(x_i, y_i) = −β_i(t*)·g — moving the curve by δ is moving the sensor by −δ.
+
+These are (22)–(27) of the paper; tests check them against finite differences.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from bsslam.config import ObservationConfig
+from bsslam.scan import ObservedSpline
+from bsslam.slam import beam_kernels, range_kernels
+from bsslam.slam.association import Match
+from bsslam.se2 import compose
+from bsslam.slam.map_curves import MapCurves
+
+
+def laser_pose(robot_pose: np.ndarray, laser_offset: np.ndarray) -> np.ndarray:
+    """World pose (3,) of the laser mounted at ``laser_offset`` on a robot at ``robot_pose``:
+    their composition, the heading not wrapped (the beam angles μ = φ + φ_o + τ are formed
+    from it as the compiled kernels form them)."""
+    return compose(robot_pose, laser_offset, wrap=False)
+
+
+@dataclass(frozen=True, eq=False)
+class Beams:
+    """The beams of one scan assigned to map splines, each (k,).
+
+    Attributes:
+        curve: index of each beam's map spline in the filter's :class:`MapCurves` table.
+        bearings: robot-frame bearings (rad); ranges: measured ranges (m);
+        t0: Newton start on the map spline (m).
+    """
+
+    curve: np.ndarray
+    bearings: np.ndarray
+    ranges: np.ndarray
+    t0: np.ndarray
+
+    @functools.cached_property
+    def used_curves(self) -> np.ndarray:
+        """The distinct map splines of the beams (increasing)."""
+        return range_kernels.used_curves(self.curve)
+
+
+@dataclass(frozen=True)
+class Linearization:
+    """Stacked ranges and Jacobian of the beams of one scan at one estimate.
+
+    Attributes:
+        cols: (c,) touched state indices (the pose's 0, 1, 2 first); H_c: (m, c) the
+            Jacobian on them; residual: (m,) z − h(x) (m); R: the ranges' noise, r for
+            R = r I (m²);
+        beam: (m,) the beam (index into the linearised :class:`Beams`) of each row;
+        hit_t: (m,) map-spline parameter of each hit (m).
+    """
+
+    cols: np.ndarray
+    H_c: np.ndarray
+    residual: np.ndarray
+    R: float
+    beam: np.ndarray
+    hit_t: np.ndarray
+
+
+class Drops(Protocol):
+    """Where dropped beams are counted (:class:`~bsslam.slam.filter.StepReport`)."""
+
+    def drop(self, reason: str, count: int) -> None: ...
+
+
+class MeasurementModel(Protocol):
+    """From a scan's matched beams to the stacked linearisation an estimator updates with."""
+
+    def beams(self, observed: list[ObservedSpline], matches: list[list[Match]], curves: MapCurves) -> Beams | None:
+        """The beams of the matched intervals; None when there are none."""
+
+    def linearize(self, beams: Beams, curves: MapCurves, x: np.ndarray, laser_offset: np.ndarray,
+                  drops: Drops | None = None) -> Linearization | None:
+        """The beams linearised at the state mean ``x``; None when no beam is left."""
+
+    def select(self, beams: Beams, lin: Linearization, keep: np.ndarray) -> tuple[Beams, Linearization]:
+        """The beams and their rows restricted to ``keep`` (m,) bool."""
+
+
+class RangeModel:
+    """The ray–spline range model with independent beams of equal variance
+    R = (σ_range² + σ_model²)·inflation (m²). Implements :class:`MeasurementModel`.
+
+    Args:
+        config: the observation settings (noise, beam stride, grazing limit).
+    """
+
+    def __init__(self, config: ObservationConfig):
+        self.R = (config.sigma_range_m ** 2 + config.sigma_model_m ** 2) * config.r_inflation
+        self.stride = config.beam_stride
+        self.max_tan = math.tan(config.max_incidence_rad)
+
+    def beams(self, observed: list[ObservedSpline], matches: list[list[Match]], curves: MapCurves) -> Beams | None:
+        """The beams of the matched intervals, each with its map spline (its index in
+        ``curves``, which only ``curves.index`` is read of) and Newton start; a beam inside
+        several matched intervals goes to the first (by ``u_ini``).
+
+        The matches and the matched splines' beams go to one compiled call
+        (:func:`beam_kernels.beam_groups`) as a table and one array: a loop over them here
+        was about a hundred numpy calls a scan."""
+        table = [(i, obs.params.shape[0], m.u_ini, m.u_fin, m.t_ini, m.t_fin, curves.index[m.feature_id])
+                 for i, (obs, obs_matches) in enumerate(zip(observed, matches)) for m in obs_matches]
+        if not table:
+            return None
+        beams = np.concatenate([a for obs, obs_matches in zip(observed, matches) if obs_matches
+                                for a in (obs.params, obs.angles, obs.ranges)])
+        curve, values = beam_kernels.beam_groups(np.array(table, dtype=float), beams, self.stride)
+        if curve.shape[0] == 0:
+            return None
+        return Beams(curve, values[0], values[1], values[2])
+
+    def linearize(self, beams: Beams, curves: MapCurves, x: np.ndarray, laser_offset: np.ndarray,
+                  drops: Drops | None = None) -> Linearization | None:
+        """Predicted ranges and the stacked Jacobian of every beam at the estimate ``x``, in
+        one compiled call over all the beams' map splines (:meth:`MapCurves.linearize`).
+
+        Beams that miss their spline or hit it at grazing incidence are dropped (and
+        counted when ``drops`` is given). Returns None when no beam is left.
+        """
+        cols, H_c, residual, rows, hit_t, missed, grazing = curves.linearize(
+            x, laser_offset, beams.curve, beams.bearings, beams.ranges, beams.t0, self.max_tan)
+        if drops is not None:
+            drops.drop("missed", missed)
+            drops.drop("grazing", grazing)
+        if rows.size == 0:
+            return None
+        return Linearization(cols, H_c, residual, self.R, rows, hit_t)
+
+    def select(self, beams: Beams, lin: Linearization, keep: np.ndarray) -> tuple[Beams, Linearization]:
+        """The beams and their linearisation restricted to the rows in ``keep``, Newton
+        restarted from the rows' last hit parameters (one compiled call for the copies)."""
+        index, values, H_c = beam_kernels.select_rows(keep, lin.beam, beams.curve, beams.bearings, beams.ranges,
+                                                      lin.H_c, lin.residual, lin.hit_t)
+        return (Beams(index[0], values[0], values[1], values[2]),
+                Linearization(lin.cols, H_c, values[3], lin.R, index[1], values[4]))
