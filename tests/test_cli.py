@@ -232,13 +232,34 @@ def test_bench_takes_logs_folders_and_patterns_and_runs_them_on_two_workers(tmp_
     out = invoke("bench", tmp_path / "a", str(tmp_path / "t*.clf"), "--workers", 2, "-q").output
     rows = {line.split("│")[1].strip(): line for line in out.splitlines() if ".clf" in line}
     assert set(rows) == {"one.clf", "two.clf"}
-    assert all(line.split("│")[2].strip() == "12" for line in rows.values())  # scans
+    assert all(line.split("│")[3].strip() == "12" for line in rows.values())  # scans
     # without LOGS the folder comes from --data or BSSLAM_DATA, never from a default
     result = runner.invoke(app, ["bench"])
     assert result.exit_code == 2 and "BSSLAM_DATA" in result.output
     monkeypatch.setenv("BSSLAM_DATA", str(tmp_path / "a"))
     out = invoke("bench", "--workers", 1, "--steps", 5).output
     assert "one.clf" in out and "two.clf" not in out
+
+
+def test_bench_perturb_runs_seeded_noise_and_float32_and_reports_the_spread(tmp_path):
+    from bsslam.bench import BenchRow, Perturbation, bench_log, stability
+
+    log = write_carmen_log(tmp_path / "one.clf", "mixed", 1, 10)
+    out = invoke("bench", log, "--workers", 1, "--perturb", 2, "--steps", 8, "-q").output
+    inputs = [line.split("│")[2].strip() for line in out.splitlines() if "one.clf" in line and "noise" in line
+              or "one.clf" in line and "float32" in line]
+    assert inputs[:3] == ["noise seed 0", "noise seed 1", "float32"]
+    assert "ATE over 2 runs with 1 mm range noise" in out
+    # the same seed gives the same run; the noise does move the result
+    from bsslam.config import SLAMConfig
+    a, b = (bench_log(log, SLAMConfig(), steps=8, perturbation=Perturbation(0.001, 0)) for _ in range(2))
+    clean = bench_log(log, SLAMConfig(), steps=8)
+    assert a.ate_m == b.ate_m and a.ate_m != clean.ate_m
+    rows = [BenchRow("x", 1, 0, 0, 0, 0, ate, 0, 0, 0, "-", 0, variant)
+            for ate, variant in [(0.1, "noise seed 0"), (0.3, "noise seed 1"), (0.2, "noise seed 2"), (0.5, "float32")]]
+    (st,) = stability(rows)
+    assert (st.median_m, st.min_m, st.max_m, st.float32_m) == (0.2, 0.1, 0.3, 0.5)
+    assert st.spread == pytest.approx(1.0) and st.worst_ratio == pytest.approx(2.5)
 
 
 def test_run_on_a_folder_runs_each_log_in_it(tmp_path):

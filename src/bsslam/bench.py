@@ -19,6 +19,7 @@ from bsslam.eval import ate, relations_error
 from bsslam.io import open_dataset
 from bsslam.io.trajectory_file import read_trajectory
 from bsslam.parallel import run_all
+from bsslam.perturbed_dataset import PerturbedDataset
 from bsslam.pipeline import run_dataset
 
 #: The Intel relations file counts time from the Unix epoch; our Intel logs from the start.
@@ -43,6 +44,64 @@ class BenchRow:
     #: peak resident memory of the process that ran the log, by its end (MB); the processes
     #: of a cluster run several logs each, so this is the most any of them had needed
     peak_rss_mb: float
+    #: the input as run: "as logged", "noise seed K" or "float32" (see :class:`Perturbation`)
+    variant: str = "as logged"
+
+
+@dataclass(frozen=True)
+class Perturbation:
+    """How a bench run alters the log's ranges (:class:`~bsslam.perturbed_dataset.PerturbedDataset`):
+    seeded Gaussian noise of ``sigma_m`` (m) or float32 rounding."""
+
+    sigma_m: float = 0.0
+    seed: int = 0
+    float32: bool = False
+
+    @property
+    def label(self) -> str:
+        return "float32" if self.float32 else f"noise seed {self.seed}"
+
+
+def perturbations(runs: int, sigma_m: float = 0.001) -> list[Perturbation]:
+    """The runs of ``bench --perturb N``: N seeded noise runs (seeds 0 … N−1) and one float32 run."""
+    return [Perturbation(sigma_m, seed) for seed in range(runs)] + [Perturbation(float32=True)]
+
+
+@dataclass(frozen=True)
+class Stability:
+    """A log's ATE over its perturbed runs (m): median, least and most, and the float32 run's."""
+
+    log: str
+    runs: int
+    median_m: float
+    min_m: float
+    max_m: float
+    float32_m: float
+
+    @property
+    def spread(self) -> float:
+        """(max − min) / median; the target is ≤ 0.2."""
+        return (self.max_m - self.min_m) / self.median_m
+
+    @property
+    def worst_ratio(self) -> float:
+        """The worst run (noise or float32) over the median; the target is ≤ 1.5."""
+        return max(self.max_m, self.float32_m) / self.median_m
+
+
+def stability(rows: Sequence["BenchRow | BenchFailure"]) -> list[Stability]:
+    """Per log, the ATE spread over the runs of :func:`perturbations` (logs in first-seen order)."""
+    import numpy as np
+
+    out = []
+    for log in dict.fromkeys(r.log for r in rows if isinstance(r, BenchRow)):
+        noisy = np.array([r.ate_m for r in rows if isinstance(r, BenchRow) and r.log == log
+                          and r.variant.startswith("noise")])
+        f32 = [r.ate_m for r in rows if isinstance(r, BenchRow) and r.log == log and r.variant == "float32"]
+        if noisy.size:
+            out.append(Stability(log, int(noisy.size), float(np.median(noisy)), float(noisy.min()), float(noisy.max()),
+                                 f32[0] if f32 else float("nan")))
+    return out
 
 
 @dataclass(frozen=True)
@@ -54,9 +113,12 @@ class BenchFailure:
 
 
 def bench_log(log: Path, config: SLAMConfig, steps: int | None = None, progress=None,
-              relocalize_progress=None) -> BenchRow:
-    """Run one log and score it against ``<log>.gt.txt`` (and ``intel.relations`` for Intel)."""
+              relocalize_progress=None, perturbation: Perturbation | None = None) -> BenchRow:
+    """Run one log (its ranges altered by ``perturbation``, if given) and score it against
+    ``<log>.gt.txt`` (and ``intel.relations`` for Intel)."""
     data = open_dataset(log)
+    if perturbation is not None:
+        data = PerturbedDataset(data, perturbation.sigma_m, perturbation.seed, perturbation.float32)
     t0 = time.perf_counter()
     quiet = lambda done, total: None  # noqa: E731
     result = run_dataset(data, config, steps=steps, progress=progress or quiet, point_stride=0,
@@ -80,21 +142,26 @@ def bench_log(log: Path, config: SLAMConfig, steps: int | None = None, progress=
             rel = f"{r.trans_mean_m:.3f}±{r.trans_std_m:.3f} m, {r.rot_mean_deg:.2f}±{r.rot_std_deg:.2f}° ({r.used})"
     return BenchRow(log.name, result.steps, wall, 1000.0 * result.wall_time_s / max(result.steps, 1),
                     len(result.map), int(result.state_sizes.max()) if result.steps else 3, ate_m, online_m, odo_m, fe_m, rel,
-                    resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
+                    resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+                    perturbation.label if perturbation is not None else "as logged")
 
 
-def _bench_or_failure(log: Path, config: SLAMConfig, steps: int | None) -> BenchRow | BenchFailure:
+def _bench_or_failure(job: tuple[Path, Perturbation | None], config: SLAMConfig,
+                      steps: int | None) -> BenchRow | BenchFailure:
+    log, perturbation = job
     try:
-        return bench_log(log, config, steps=steps)
+        return bench_log(log, config, steps=steps, perturbation=perturbation)
     except BsslamError as exc:  # one bad log must not cost the others' figures
         return BenchFailure(log.name, str(exc))
 
 
 def bench_logs(logs: Sequence[Path], config: SLAMConfig, steps: int | None = None, *,
-               workers: int | None = None, scheduler: str | None = None,
-               progress=None) -> list[BenchRow | BenchFailure]:
-    """:func:`bench_log` for every log, the logs spread over ``workers``/``scheduler`` as
-    :func:`bsslam.parallel.run_all` does (a local cluster over every core by default);
-    ``progress(done_logs, total)``. Results in the order of ``logs``."""
+               workers: int | None = None, scheduler: str | None = None, progress=None,
+               perturb: Sequence[Perturbation] = ()) -> list[BenchRow | BenchFailure]:
+    """:func:`bench_log` for every log — once as logged, or once per ``perturb`` entry —
+    the runs spread over ``workers``/``scheduler`` as :func:`bsslam.parallel.run_all` does (a
+    local cluster over every core by default); ``progress(done_runs, total)``. Results in
+    the order of ``logs``, each log's runs in the order of ``perturb``."""
     fn = partial(_bench_or_failure, config=config, steps=steps)
-    return run_all(fn, [Path(log) for log in logs], workers=workers, scheduler=scheduler, progress=progress)
+    jobs = [(Path(log), p) for log in logs for p in (perturb or [None])]
+    return run_all(fn, jobs, workers=workers, scheduler=scheduler, progress=progress)

@@ -371,9 +371,13 @@ def bench(
     mode: Optional[str] = typer.Option(None, help="slam or localization (default: the configuration's)."),
     workers: Optional[int] = typer.Option(None, help=WORKERS_HELP),
     scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
+    perturb: int = typer.Option(0, min=0, help="Run each log N times with every range moved by seeded "
+                                "Gaussian noise (seeds 0…N−1) and once with float32 ranges, and report "
+                                "the spread of ATE: how much of a figure is the data, how much rounding."),
+    perturb_sigma: float = typer.Option(0.001, min=0.0, help="σ of the --perturb noise (m)."),
 ) -> None:
     """Accuracy and speed on several logs, one configuration for all, the logs in parallel."""
-    from bsslam.bench import BenchFailure, bench_logs
+    from bsslam.bench import BenchFailure, bench_logs, perturbations, stability
     from bsslam.io.log_paths import find_logs
 
     try:
@@ -384,20 +388,30 @@ def bench(
         config = _load_config(config_file)
         if mode is not None:
             config = config.replace(mode=mode)
-        with progress_bar(f"bench: {len(found)} log(s)", len(found)) as update:
-            rows = bench_logs(found, config, steps=steps, workers=workers, scheduler=scheduler, progress=update)
+        runs = perturbations(perturb, perturb_sigma) if perturb else []
+        with progress_bar(f"bench: {len(found)} log(s)", len(found) * max(len(runs), 1), "runs") as update:
+            rows = bench_logs(found, config, steps=steps, workers=workers, scheduler=scheduler, progress=update,
+                              perturb=runs)
     except BsslamError as exc:
         fail(exc)
-    table = Table("log", "scans", "wall s", "ms/scan", "splines", "max state", "ATE m", "online ATE m",
+    table = Table("log", "input", "scans", "wall s", "ms/scan", "splines", "max state", "ATE m", "online ATE m",
                   "odometry ATE m", "front end ATE m", "relations (Intel)", title=f"bsslam bench ({config.mode})")
     for row in rows:
         if isinstance(row, BenchFailure):
             console.print(f"[red]{escape(row.log)}: {escape(row.message)}[/red]", soft_wrap=True)
             continue
-        table.add_row(row.log, str(row.scans), f"{row.wall_s:.1f}", f"{row.ms_per_scan:.1f}", str(row.splines),
+        table.add_row(row.log, row.variant, str(row.scans), f"{row.wall_s:.1f}", f"{row.ms_per_scan:.1f}", str(row.splines),
                       str(row.state_size), f"{row.ate_m:.3f}", f"{row.online_ate_m:.3f}", f"{row.odometry_ate_m:.3f}", f"{row.frontend_ate_m:.3f}",
                       row.relations)
     Console(width=max(Console().width, 150)).print(table)
+    if perturb:
+        spread = Table("log", "runs", "median ATE m", "min", "max", "float32", "(max−min)/median",
+                       "worst/median", title=f"ATE over {perturb} runs with {1000 * perturb_sigma:g} mm range noise "
+                       "(target: spread ≤ 0.2, worst ≤ 1.5 × median)")
+        for st in stability(rows):
+            spread.add_row(st.log, str(st.runs), f"{st.median_m:.3f}", f"{st.min_m:.3f}", f"{st.max_m:.3f}",
+                           f"{st.float32_m:.3f}", f"{st.spread:.2f}", f"{st.worst_ratio:.2f}")
+        Console(width=max(Console().width, 150)).print(spread)
     ran = [row for row in rows if not isinstance(row, BenchFailure)]
     if ran:
         console.print(f"peak memory (max RSS) of the processes that ran the logs: "
