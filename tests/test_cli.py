@@ -316,3 +316,20 @@ def test_the_compile_check_finds_this_machines_cache(monkeypatch, tmp_path):
     cache_file = linearize_beams._cache._cache_file
     monkeypatch.setattr(cache_file, "_index_path", str(tmp_path / "missing.nbi"))
     assert needs_compiling(linearize_beams)
+
+
+def test_the_input_limits_come_from_the_configuration(tmp_path):
+    """``input.max_speed_m_s`` reaches the reader: a robot limited to 1 cm/s has every step
+    of the simulated log bridged and counted; the defaults accept them all."""
+    import json
+
+    log = write_carmen_log(tmp_path / "one.clf", "mixed", 1, 6)
+    (tmp_path / "slow.yaml").write_text("input: {max_speed_m_s: 0.01}\nrelocalize: false\n")
+    (tmp_path / "plain.yaml").write_text("relocalize: false\n")
+    skipped = {}
+    for name in ("slow", "plain"):
+        invoke("run", log, "--config", tmp_path / f"{name}.yaml", "--out", tmp_path / name, "-q")
+        summary = json.loads((tmp_path / name / "latest" / "summary.json").read_text())
+        skipped[name] = summary["skipped_input_by_reason"]
+    assert skipped["plain"] == {}
+    assert sum(v for k, v in skipped["slow"].items() if "implausible" in k) >= 4

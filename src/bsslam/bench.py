@@ -17,6 +17,7 @@ from bsslam.config import SLAMConfig
 from bsslam.errors import BsslamError
 from bsslam.eval import ate, relations_error
 from bsslam.io import open_dataset
+from bsslam.io.reader_config import ReaderConfig
 from bsslam.io.trajectory_file import read_trajectory
 from bsslam.parallel import run_all
 from bsslam.perturbed_dataset import PerturbedDataset
@@ -116,7 +117,7 @@ def bench_log(log: Path, config: SLAMConfig, steps: int | None = None, progress=
               relocalize_progress=None, perturbation: Perturbation | None = None) -> BenchRow:
     """Run one log (its ranges altered by ``perturbation``, if given) and score it against
     ``<log>.gt.txt`` (and ``intel.relations`` for Intel)."""
-    data = open_dataset(log)
+    data = open_dataset(log, reader_config=ReaderConfig(limits=config.input))
     if perturbation is not None:
         data = PerturbedDataset(data, perturbation.sigma_m, perturbation.seed, perturbation.float32)
     t0 = time.perf_counter()

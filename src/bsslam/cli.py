@@ -293,6 +293,7 @@ def run(
             run(**{**options, "log": one, "out": out / one.stem})
         return
     from bsslam.io import open_dataset
+    from bsslam.io.reader_config import ReaderConfig
     from bsslam.io.results import interrupt_reason, run_folder
     from bsslam.io.trajectory_file import read_trajectory
     from bsslam.outputs import write_outputs
@@ -305,7 +306,8 @@ def run(
             config = _load_config(config_file)
             if mode is not None:
                 config = config.replace(mode=mode)
-            data = open_dataset(log, format=fmt, strict=strict, scan_topic=scan_topic, odom_topic=odom_topic)
+            data = open_dataset(log, format=fmt, strict=strict, scan_topic=scan_topic, odom_topic=odom_topic,
+                                reader_config=ReaderConfig(limits=config.input))
             ref = read_trajectory(reference) if reference else None
             with run_folder(out) as run_dir:
                 with progress_bar(f"{log.name}", steps, "scans") as update:

@@ -242,8 +242,8 @@ class Mapper:
             :class:`bsslam.viz.rerun_viewer.RerunViewer`); a no-op by default.
         slam: an existing filter to continue instead of a new one (its state is not reset;
             ``initial_pose`` is then ignored).
-        limits: the physical limits :meth:`add` checks scans and odometry against (the
-            readers' defaults: :class:`~bsslam.input_limits.InputLimits`).
+        limits: the physical limits :meth:`add` checks scans and odometry against; by
+            default ``config.input`` (:class:`~bsslam.input_limits.InputLimits`).
         strict: an implausible odometry step raises InputError instead of being bridged
             and counted in :attr:`skipped`.
     """
@@ -259,7 +259,7 @@ class Mapper:
         self._records: list[_Record] = []
         self._first: tuple[np.ndarray, np.ndarray] | None = None   # the first pose and covariance
         self._odometry: np.ndarray | None = None    # the last odometry pose
-        self.limits = limits if limits is not None else InputLimits()
+        self.limits = limits if limits is not None else self.config.input
         self.strict = strict
         self.skipped = SkipCounter()   # what add() bridged, by reason
         self._gate = OdometryGate(self.limits)
