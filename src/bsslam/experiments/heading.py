@@ -39,11 +39,13 @@ def _one_run(seed: int, sigma0: float, updates: int, config: SLAMConfig, sim: Si
 
 
 def heading_gain_experiment(sigmas_rad=DEFAULT_SIGMAS_RAD, runs: int = 50, updates: int = 30, seed: int = 0,
-                            workers: int | None = None, progress=None) -> dict[float, np.ndarray]:
+                            workers: int | None = None, progress=None,
+                            base: SLAMConfig | None = None) -> dict[float, np.ndarray]:
     """Mean estimated σ_φ (rad) after each update (index 0 = after the first update, i.e.
-    the second scan; the first builds the map) per σ₀."""
+    the second scan; the first builds the map) per σ₀. ``base``: the filter's configuration
+    before it is matched to the simulator (e.g. ``SLAMConfig(estimator="oc-ekf")``)."""
     sim = SimConfig()
-    config = simulation_config(SLAMConfig(), sim)
+    config = simulation_config(base or SLAMConfig(), sim)
     out = {}
     total = runs * len(sigmas_rad)
     for i, s0 in enumerate(sigmas_rad):
