@@ -135,3 +135,35 @@ def test_localization_uses_the_ekf():
     assert type(slam.state) is CompressedEKF
     assert isinstance(SplineSLAM(SLAMConfig(estimator="oc-ekf")).state, OCEKF)
     assert type(SplineSLAM(SLAMConfig()).state) is CompressedEKF   # the paper's filter by default
+
+
+def heading_nees(estimator: str, seed: int, sigma0: float, updates: int) -> np.ndarray:
+    """(updates,) heading NEES e_φ²/σ_φ² of a stationary robot facing the curved wall (the
+    paper's Fig. 11 setting), its initial heading drawn from its prior N(truth, σ₀²)."""
+    sim = SimConfig()
+    data = simulate(get_world("curved-wall"), sim, seed=seed, steps=updates + 1)
+    truth = data.ground_truth.poses[0]
+    start = truth + np.array([0.0, 0.0, np.random.default_rng([seed, 7]).normal(0.0, sigma0)])
+    config = simulation_config(SLAMConfig(estimator=estimator), sim)
+    slam = SplineSLAM(config, initial_pose=start, initial_covariance=np.diag([0.0, 0.0, sigma0 ** 2]))
+    out = []
+    for k, frame in enumerate(data):
+        report = slam.step(None, frame.scan)
+        if k:
+            assert report.beams_used > 50
+            out.append(wrap_angle(slam.pose[2] - truth[2]) ** 2 / slam.pose_covariance[2, 2])
+    return np.array(out)
+
+
+def test_monte_carlo_heading_nees_stays_in_the_band_with_oc_ekf_only():
+    """Ten seeded runs, ten updates each. For a consistent filter the mean over R runs of the
+    (1-dof) heading NEES at each update is χ²(R)/R; the two-sided band at each of the K
+    updates holds with probability 1 − α/K, so the OC-EKF falls outside it anywhere with
+    probability at most α = 1% (Bonferroni: whatever the correlation between updates). The
+    paper's EKF, which believes the map told it its heading, leaves it by orders of magnitude."""
+    runs, updates, sigma0, alpha = 10, 10, 0.05, 0.01
+    lower, upper = chi2.ppf([alpha / (2 * updates), 1 - alpha / (2 * updates)], runs) / runs
+    oc = np.mean([heading_nees("oc-ekf", s, sigma0, updates) for s in range(runs)], axis=0)
+    ekf = np.mean([heading_nees("ekf", s, sigma0, updates) for s in range(runs)], axis=0)
+    assert np.all((oc >= lower) & (oc <= upper)), (oc, lower, upper)
+    assert np.all(ekf[2:] > 10 * upper), ekf
