@@ -5,6 +5,7 @@ breaks both; its compressed form against the dense textbook form; and its NEES."
 
 import numpy as np
 import pytest
+from dense_ekf import DenseEKF
 from scipy.stats import chi2
 
 from bsslam.config import SLAMConfig
@@ -15,7 +16,6 @@ from bsslam.slam import SplineSLAM
 from bsslam.slam.estimator import CompressedEKF
 from bsslam.slam.oc_ekf import OCEKF, NullSpaceTracking, pose_null_rows, project_out
 from bsslam.trajectory import wrap_angle
-from dense_ekf import DenseEKF
 
 
 class Recording(NullSpaceTracking):
