@@ -98,6 +98,9 @@ class DenseEKF:
     def constrain(self, cols, H_c):
         return H_c
 
+    def anchor(self, idx_x, idx_y):
+        pass
+
     def block(self, rows, cols):
         return self.P[np.ix_(rows, cols)].copy()
 

@@ -100,6 +100,11 @@ class Estimator(Protocol):
         H (m, c): H itself for the EKF, its projection for the observability-constrained
         EKF (:mod:`bsslam.slam.oc_ekf`). The filter gates, iterates and updates with it."""
 
+    def anchor(self, idx_x: np.ndarray, idx_y: np.ndarray) -> None:
+        """A spline was refitted (extended): the entries ``idx_x``, ``idx_y`` (paired x and y
+        of its control points) are linearised at their current estimate from now on (the
+        OC-EKF's unobservable directions; nothing for the EKF)."""
+
     def update(self, cols: np.ndarray, H: np.ndarray, residual: np.ndarray, R: Noise,
                gain: Gain | None = None) -> Innovation:
         """x ← x + K ν, P ← P − K H P for H (m, c) on ``cols`` and ν = ``residual`` (m,);
@@ -160,6 +165,9 @@ class CompressedEKF:
 
     def constrain(self, cols: np.ndarray, H: np.ndarray) -> np.ndarray:
         return H
+
+    def anchor(self, idx_x: np.ndarray, idx_y: np.ndarray) -> None:
+        pass
 
     def block(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         return self.joint.block(rows, cols)

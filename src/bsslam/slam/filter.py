@@ -467,6 +467,8 @@ class SplineSLAM:
         else:
             f.idx_x, f.idx_y = np.concatenate([new_x, f.idx_x]), np.concatenate([new_y, f.idx_y])
         f.knots = ext.curve.knots.copy()
+        # the refitted spline's unobservable directions at its new estimate (OC-EKF; see anchor)
+        self.state.anchor(f.idx_x, f.idx_y)
         self.spline_map.extended(f, fitted.table)
         return True
 
