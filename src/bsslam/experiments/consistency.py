@@ -104,7 +104,9 @@ class ConsistencyResult:
 def consistency_experiment(variant: str, runs: int = 50, seed: int = 0, world: str = "rounded-room",
                            steps: int | None = None, workers: int | None = None, progress=None,
                            base: SLAMConfig | None = None, sim: SimConfig | None = None) -> ConsistencyResult:
-    """Monte Carlo NEES of one variant (seeds ``seed … seed+runs−1``), using every core."""
+    """Monte Carlo NEES of one variant (seeds ``seed … seed+runs−1``), using every core.
+    ``base``: the filter's configuration the variant starts from, e.g.
+    ``SLAMConfig(estimator="oc-ekf")`` for the observability-constrained EKF."""
     sim = sim or SimConfig()
     config = simulation_config(variant_config(variant, base), sim)
     fn = partial(_one_run, world=world, steps=steps, config=config, sim=sim)
