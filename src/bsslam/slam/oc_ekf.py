@@ -41,7 +41,8 @@ Measured (``SLAMConfig(estimator=...)`` through the experiments' ``base``): σ_�
 updates / σ₀ of the stationary robot (heading-gain, 50 runs) is 1.0 for σ₀ = 0.01, 0.05,
 0.2 (EKF: 0.41, 0.09, 0.022): the map built from the robot tells it nothing about its
 heading. Over the double loops the NEES barely changes (20 runs, fraction of steps in the
-95% band, EKF → OC-EKF): rounded-room 0.58 → 0.60 without extension, 0.39 → 0.37 with;
+95% band, EKF → OC-EKF): rounded-room 0.58 → 0.60 without extension, 0.39 → 0.37 with
+(50 runs: 0.48 → 0.48, 0.33 → 0.35; both first leave it at step 59, 40);
 corridor-loop 0.18 → 0.17 and 0.08 → 0.10; mixed 0.95 → 0.95 and 0.34 → 0.55. What keeps
 those filters out of the band is not information along the unobservable directions. The
 projection is least squares in the state's own units; where the ranges leave a direction
