@@ -503,6 +503,15 @@ class Variant(str, Enum):
     extension = "extension"
 
 
+class Estimator(str, Enum):
+    ekf = "ekf"
+    oc_ekf = "oc-ekf"
+
+
+ESTIMATOR_HELP = ("ekf: the paper's filter; oc-ekf: the observability-constrained EKF (global translation "
+                  "and rotation stay unobservable in its linearisations).")
+
+
 @experiment_app.command("consistency")
 def consistency(variant: Variant = typer.Option(..., help="Which filter variant."),
                 runs: int = typer.Option(50, help="Monte Carlo runs."), seed: int = typer.Option(0),
@@ -510,16 +519,20 @@ def consistency(variant: Variant = typer.Option(..., help="Which filter variant.
                 steps: Optional[int] = typer.Option(None, min=1, help="Steps per run (default: the double loop)."),
                 workers: Optional[int] = typer.Option(None, help=WORKERS_HELP),
                 scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
+                estimator: Estimator = typer.Option(Estimator.ekf, help=ESTIMATOR_HELP),
                 out: Path = typer.Option(Path("results/consistency"), help=OUT_HELP)) -> None:
     """Paper Figs. 10/12: average pose NEES over Monte Carlo runs with the 95% χ² band."""
     from bsslam.experiments.consistency import consistency_experiment, write_consistency
 
+    from bsslam.config import SLAMConfig
+
     settings = {"experiment": "consistency", "variant": variant.value, "runs": runs, "seed": seed, "world": world,
-                "steps": steps}
+                "steps": steps, "estimator": estimator.value}
     with experiment_folder(out, settings) as run_dir:
         with progress_bar(f"consistency ({variant.value})", runs, "runs") as update:
             res = consistency_experiment(variant.value, runs=runs, seed=seed, world=world, steps=steps,
-                                         workers=workers, scheduler=scheduler, progress=update)
+                                         workers=workers, scheduler=scheduler, progress=update,
+                                         base=SLAMConfig(estimator=estimator.value))
         write_consistency(res, run_dir)
     exit_step = res.first_exit()
     print_summary({
@@ -536,15 +549,20 @@ def heading_gain(runs: int = typer.Option(50, help="Monte Carlo runs per initial
                  updates: int = typer.Option(30, help="Scans per run."), seed: int = typer.Option(0),
                  workers: Optional[int] = typer.Option(None, help=WORKERS_HELP),
                  scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
+                 estimator: Estimator = typer.Option(Estimator.ekf, help=ESTIMATOR_HELP),
                  out: Path = typer.Option(Path("results/heading-gain"), help=OUT_HELP)) -> None:
     """Paper Fig. 11: estimated heading σ of a stationary robot over updates."""
     from bsslam.experiments.heading import DEFAULT_SIGMAS_RAD, heading_gain_experiment, write_heading_gain
 
-    settings = {"experiment": "heading-gain", "runs": runs, "updates": updates, "seed": seed}
+    from bsslam.config import SLAMConfig
+
+    settings = {"experiment": "heading-gain", "runs": runs, "updates": updates, "seed": seed,
+                "estimator": estimator.value}
     with experiment_folder(out, settings) as run_dir:
         with progress_bar("heading gain", runs * len(DEFAULT_SIGMAS_RAD), "runs") as update:
             res = heading_gain_experiment(runs=runs, updates=updates, seed=seed, workers=workers,
-                                          scheduler=scheduler, progress=update)
+                                          scheduler=scheduler, progress=update,
+                                          base=SLAMConfig(estimator=estimator.value))
         write_heading_gain(res, run_dir)
     table = Table("σ₀ (rad)", "σ_φ after 1 update", f"σ_φ after {updates}", title="Heading information gain")
     for s0, sig in res.items():

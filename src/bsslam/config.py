@@ -340,6 +340,10 @@ class MappingConfig:
 
 Mode = Literal["slam", "localization"]
 
+#: The joint Gaussian's filter: "ekf" the paper's, "oc-ekf" the observability-constrained
+#: EKF (:mod:`bsslam.slam.oc_ekf`).
+EstimatorName = Literal["ekf", "oc-ekf"]
+
 
 @dataclass(frozen=True)
 class FrontendConfig:
@@ -629,6 +633,10 @@ class SLAMConfig:
             enters (the log readers, :meth:`bsslam.Mapper.add`): beams per scan, plausible
             speed and turn rate, coordinates, laser offset (see
             :class:`~bsslam.input_limits.InputLimits`).
+        estimator: "ekf" (the paper's) or "oc-ekf": the observability-constrained EKF
+            (Huang, Mourikis, Roumeliotis), whose linearisations keep global translation and
+            rotation unobservable, so the map does not make the filter believe it knows its
+            heading (full SLAM only; localisation in a given map uses the EKF).
     """
 
     spline: SplineConfig = field(default_factory=SplineConfig)
@@ -643,9 +651,11 @@ class SLAMConfig:
     mode: Mode = "slam"
     initial_pose_sigma: tuple[float, float, float] = (0.0, 0.0, 0.0)
     relocalize: bool = True
+    estimator: EstimatorName = "ekf"
 
     def __post_init__(self) -> None:
         _check(self.mode in ("slam", "localization"), f"mode must be 'slam' or 'localization', got {self.mode!r}")
+        _check(self.estimator in ("ekf", "oc-ekf"), f"estimator must be 'ekf' or 'oc-ekf', got {self.estimator!r}")
         _check(isinstance(self.relocalize, bool), f"relocalize must be true or false, got {self.relocalize!r}")
         _check(len(self.initial_pose_sigma) == 3 and all(s >= 0 for s in self.initial_pose_sigma),
                "initial_pose_sigma must be three values ≥ 0")

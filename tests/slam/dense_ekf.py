@@ -86,6 +86,21 @@ class DenseEKF:
     def predict(self, delta, Q):
         predict(self.x, self.P, delta, Q)
 
+    def move_pose(self, pose, F, Q_pose):
+        """x[:3] ← pose, P ← A P Aᵀ + Q_pose on the pose block (A: F on the pose)."""
+        A = np.eye(self.size)
+        A[:3, :3] = F
+        self.x[:3] = pose
+        P = A @ self.P @ A.T
+        P[:3, :3] += Q_pose
+        self.P = 0.5 * (P + P.T)
+
+    def constrain(self, cols, H_c):
+        return H_c
+
+    def anchor(self, idx_x, idx_y):
+        pass
+
     def block(self, rows, cols):
         return self.P[np.ix_(rows, cols)].copy()
 

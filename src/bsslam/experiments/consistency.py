@@ -109,7 +109,9 @@ def consistency_experiment(variant: str, runs: int = 50, seed: int = 0, world: s
                            scheduler: str | None = None) -> ConsistencyResult:
     """Monte Carlo NEES of one variant (seeds ``seed … seed+runs−1``); the runs go where
     ``workers``/``scheduler`` say (see :func:`bsslam.parallel.run_all`: by default a
-    local cluster over every core), with the same results wherever they run."""
+    local cluster over every core), with the same results wherever they run.
+    ``base``: the filter's configuration the variant starts from, e.g.
+    ``SLAMConfig(estimator="oc-ekf")`` for the observability-constrained EKF."""
     sim = sim or SimConfig()
     config = simulation_config(variant_config(variant, base), sim)
     fn = partial(_one_run, world=world, steps=steps, config=config, sim=sim)

@@ -43,12 +43,14 @@ def _one_run(run: tuple[float, int], updates: int, config: SLAMConfig, sim: SimC
 
 def heading_gain_experiment(sigmas_rad=DEFAULT_SIGMAS_RAD, runs: int = 50, updates: int = 30, seed: int = 0,
                             workers: int | None = None, progress=None,
-                            scheduler: str | None = None) -> dict[float, np.ndarray]:
+                            scheduler: str | None = None, base: SLAMConfig | None = None) -> dict[float, np.ndarray]:
     """Mean estimated σ_φ (rad) after each update (index 0 = after the first update, i.e.
     the second scan; the first builds the map) per σ₀. The ``runs × len(sigmas_rad)`` runs
-    go where ``workers``/``scheduler`` say (see :func:`bsslam.parallel.run_all`)."""
+    go where ``workers``/``scheduler`` say (see :func:`bsslam.parallel.run_all`). ``base``: the
+    filter's configuration before it is matched to the simulator (e.g.
+    ``SLAMConfig(estimator="oc-ekf")``)."""
     sim = SimConfig()
-    config = simulation_config(SLAMConfig(), sim)
+    config = simulation_config(base or SLAMConfig(), sim)
     sigmas = [float(s0) for s0 in sigmas_rad]
     # one batch for every σ₀: a cluster is started once and kept busy across them
     batch = [(s0, s) for s0 in sigmas for s in range(seed, seed + runs)]

@@ -8,8 +8,9 @@ from bsslam.slam.estimator import CompressedEKF, Estimator
 from bsslam.slam.features import MapSpline, SplineFeature
 from bsslam.slam.filter import SplineSLAM, StepReport
 from bsslam.slam.measurement import MeasurementModel, RangeModel
+from bsslam.slam.oc_ekf import OCEKF
 from bsslam.slam.spline_map import SplineMap
 from bsslam.slam.state import JointState
 
-__all__ = ["CompressedEKF", "Estimator", "JointState", "MapSpline", "MeasurementModel", "RangeModel",
+__all__ = ["CompressedEKF", "Estimator", "JointState", "MapSpline", "MeasurementModel", "OCEKF", "RangeModel",
            "SplineFeature", "SplineMap", "SplineSLAM", "StepReport"]

@@ -95,6 +95,16 @@ class Estimator(Protocol):
     def window(self, rows: np.ndarray | None = None) -> CovarianceWindow:
         """The prior on working ``rows`` (sorted, the pose first; all when None)."""
 
+    def constrain(self, cols: np.ndarray, H: np.ndarray) -> np.ndarray:
+        """The Jacobian (m, c) on ``cols`` this estimator linearises with, from the model's
+        H (m, c): H itself for the EKF, its projection for the observability-constrained
+        EKF (:mod:`bsslam.slam.oc_ekf`). The filter gates, iterates and updates with it."""
+
+    def anchor(self, idx_x: np.ndarray, idx_y: np.ndarray) -> None:
+        """A spline was refitted (extended): the entries ``idx_x``, ``idx_y`` (paired x and y
+        of its control points) are linearised at their current estimate from now on (the
+        OC-EKF's unobservable directions; nothing for the EKF)."""
+
     def update(self, cols: np.ndarray, H: np.ndarray, residual: np.ndarray, R: Noise,
                gain: Gain | None = None) -> Innovation:
         """x ← x + K ν, P ← P − K H P for H (m, c) on ``cols`` and ν = ``residual`` (m,);
@@ -146,6 +156,18 @@ class CompressedEKF:
 
     def predict(self, delta: np.ndarray, Q: np.ndarray) -> None:
         predict_state(self.joint, delta, Q)
+
+    def move_pose(self, pose: np.ndarray, F: np.ndarray, Q_pose: np.ndarray) -> None:
+        """A prediction with given Jacobians: the pose mean becomes ``pose`` (3,) and
+        P ← A P Aᵀ + Q_pose on the pose block, A the identity with F (3, 3) on the pose."""
+        self.joint.x[:3] = pose
+        self.joint.transform_pose(F, Q_pose)
+
+    def constrain(self, cols: np.ndarray, H: np.ndarray) -> np.ndarray:
+        return H
+
+    def anchor(self, idx_x: np.ndarray, idx_y: np.ndarray) -> None:
+        pass
 
     def block(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         return self.joint.block(rows, cols)

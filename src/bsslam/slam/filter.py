@@ -10,6 +10,7 @@ prune. It works through three seams: the joint Gaussian is an
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -25,6 +26,7 @@ from bsslam.slam.estimator import CompressedEKF, Estimator
 from bsslam.slam.features import MapSpline, SplineFeature
 from bsslam.slam.measurement import RangeModel, laser_pose
 from bsslam.slam.motion import motion_noise
+from bsslam.slam.oc_ekf import OCEKF
 from bsslam.slam.spline_map import SplineMap
 from bsslam.slam.state import POSE
 from bsslam.spline import FitResult, extend_curve, fit_curve
@@ -82,10 +84,15 @@ class SplineSLAM:
     """
 
     def __init__(self, config: SLAMConfig | None = None, initial_pose=(0.0, 0.0, 0.0),
-                 initial_covariance: np.ndarray | None = None, estimator=CompressedEKF):
+                 initial_covariance: np.ndarray | None = None, estimator=None):
         """``estimator``: the class of the joint Gaussian (an :class:`Estimator`, built from
-        the initial pose (3,) and its covariance (3, 3))."""
+        the initial pose (3,) and its covariance (3, 3)); by default the configured one
+        (``config.estimator``). Localisation in a fixed map always uses the EKF: with the
+        map known, global position and heading are observable."""
         self.config = config or SLAMConfig()
+        if estimator is None:
+            oc = self.config.estimator == "oc-ekf" and self.config.mode == "slam"
+            estimator = OCEKF if oc else CompressedEKF
         if initial_covariance is None:
             initial_covariance = np.diag(np.square(self.config.initial_pose_sigma))
         self.state: Estimator = estimator(np.asarray(initial_pose, dtype=float),
@@ -276,7 +283,7 @@ class SplineSLAM:
         if beams is None:
             return
         x0 = self.state.x.copy()
-        lin = model.linearize(beams, mc, x0, offset, report)
+        lin = self._linearize(beams, x0, offset, report)
         if lin is None:
             return
         # the entries a relinearisation reads: the pose and the beams' splines (the subsets
@@ -299,6 +306,15 @@ class SplineSLAM:
         report.nis_dof += int(nu.shape[0])
         report.beams_used = report.nis_dof
 
+    def _linearize(self, beams, x, offset, report: StepReport | None = None):
+        """The beams linearised at ``x`` (:meth:`RangeModel.linearize`) with the Jacobian
+        the estimator works with (:meth:`Estimator.constrain`); None when no beam is left."""
+        lin = self.measurement.linearize(beams, self.spline_map.table, x, offset, report)
+        if lin is None:
+            return None
+        H_c = self.state.constrain(lin.cols, lin.H_c)
+        return lin if H_c is lin.H_c else dataclasses.replace(lin, H_c=H_c)
+
     def _gated(self, beams, lin, window, x0, work, offset, report: StepReport):
         """The beams whose innovations pass the gates, linearised at the first corrected
         estimate x_i: ``(beams, lin, x_i)``, or None when none is left.
@@ -307,7 +323,7 @@ class SplineSLAM:
         so after a poorly predicted step a tight gate drops exactly the beams that disagree
         with the prior. Gross outliers go first (loose gate at the prior); the real gate is
         applied at the first corrected estimate with posterior variances."""
-        model, mc = self.measurement, self.spline_map.table
+        model = self.measurement
         s_diag = window.innovation_variances(lin.cols, lin.H_c, lin.R)
         coarse = lin.residual ** 2 <= self._loose_gate * s_diag
         report.drop("gate", int((~coarse).sum()))
@@ -317,7 +333,7 @@ class SplineSLAM:
         gain = window.gain(lin.cols, lin.H_c, lin.R)
         x_i = x0.copy()
         x_i[work] += gain.correction(lin.residual)[0]
-        lin = model.linearize(beams, mc, x_i, offset)
+        lin = self._linearize(beams, x_i, offset)
         if lin is None:
             return None
         fine = lin.residual ** 2 <= self._gate * gain.posterior_variances(lin.cols, lin.H_c, lin.R)
@@ -332,12 +348,12 @@ class SplineSLAM:
         of the last iteration (ν the IEKF innovation at x_i), or None when every beam is
         lost. The iterations stop once a step moves every pose component by less than
         ``observation.iteration_tolerance`` of its posterior σ."""
-        model, mc = self.measurement, self.spline_map.table
+        model = self.measurement
         tolerance = self.config.observation.iteration_tolerance
         prior_pose_var = np.diag(self.state.pose_covariance)
         for it in range(self.config.observation.iterations):
             if it:
-                lin = model.linearize(beams, mc, x_i, offset)
+                lin = self._linearize(beams, x_i, offset)
                 if lin is None:
                     return None
                 beams, lin = model.select(beams, lin, np.ones(lin.residual.shape[0], dtype=bool))
@@ -451,6 +467,8 @@ class SplineSLAM:
         else:
             f.idx_x, f.idx_y = np.concatenate([new_x, f.idx_x]), np.concatenate([new_y, f.idx_y])
         f.knots = ext.curve.knots.copy()
+        # the refitted spline's unobservable directions at its new estimate (OC-EKF; see anchor)
+        self.state.anchor(f.idx_x, f.idx_y)
         self.spline_map.extended(f, fitted.table)
         return True
 
