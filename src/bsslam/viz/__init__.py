@@ -1,18 +1,15 @@
 """Plotting: functions that take an ``ax`` first and return it, and ``save_*`` helpers that
 are the only ones writing files.
 
-The non-interactive Agg backend is selected here, once, so plotting works on machines
-without a display; the figures themselves are built without pyplot.
+The figures are built without pyplot (``matplotlib.figure.Figure`` and its own canvas),
+so they need no display and the package never switches matplotlib's backend: importing
+bsslam leaves a notebook's inline plots alone.
 """
 
-import matplotlib
-
-matplotlib.use("Agg")
-
-from bsslam.viz.consistency_plots import plot_errors_with_bounds, plot_nees, plot_sigma_over_updates  # noqa: E402
-from bsslam.viz.figures import new_figure, save_figure  # noqa: E402
-from bsslam.viz.map_figure import save_map_figure  # noqa: E402
-from bsslam.viz.map_plots import (  # noqa: E402
+from bsslam.viz.consistency_plots import plot_errors_with_bounds, plot_nees, plot_sigma_over_updates
+from bsslam.viz.figures import new_figure, save_figure
+from bsslam.viz.map_figure import save_map_figure
+from bsslam.viz.map_plots import (
     MapStyle,
     map_style,
     plot_points,
