@@ -13,11 +13,11 @@ from bsslam.scan.laser_scan import LaserScan
 from bsslam.sim.simulator import (
     SimConfig,
     compose_increments,
-    increment_sigma,
     relative_increments,
     simulate,
 )
 from bsslam.sim.worlds import get_world
+from bsslam.slam.motion import motion_sigmas
 
 ROOM = get_world("rounded-room")
 
@@ -78,7 +78,7 @@ def test_odometry_noise_has_the_configured_sigma():
     residuals = []
     for seed in range(8):
         data = simulate(ROOM, cfg, seed=seed)
-        sigma = increment_sigma(motion, data.true_increments[1:])
+        sigma = motion_sigmas(data.true_increments[1:], motion)
         residuals.append((data.odometry_increments[1:] - data.true_increments[1:]) / sigma)
     z = np.vstack(residuals)  # standard normal if σ is right
     n = z.shape[0]
@@ -87,9 +87,9 @@ def test_odometry_noise_has_the_configured_sigma():
     np.testing.assert_array_less(np.abs(z.std(axis=0) - 1.0), 5 / math.sqrt(2 * n))
 
 
-def test_increment_sigma_is_the_papers_model():
+def test_the_simulated_odometry_noise_is_the_papers_model():
     motion = MotionNoiseConfig(a_xy_m=0.001, b_xy=0.1, a_phi_rad=0.02, b_phi=0.1, b_phi_per_m_rad=0.5)
-    sigma = increment_sigma(motion, np.array([[0.3, -0.4, -0.2]]))
+    sigma = motion_sigmas(np.array([[0.3, -0.4, -0.2]]), motion)
     np.testing.assert_allclose(sigma, [[0.031, 0.041, 0.02 + 0.02 + 0.25]])
 
 
@@ -143,10 +143,10 @@ def test_full_run_is_the_double_loop_and_ends_at_the_start():
 
 
 def test_simulator_and_filter_share_one_motion_model():
-    """The simulator's vectorised increments and noise agree with the filter's per-pose
-    motion model, so a filter fed these odometry poses sees exactly the configured noise."""
+    """The simulator's vectorised increments agree with the filter's per-pose motion
+    model (the noise is the filter's own ``motion_sigmas``), so a filter fed these odometry
+    poses sees exactly the configured noise."""
     from bsslam.se2 import between as relative, compose
-    from bsslam.slam.motion import motion_noise
 
     motion = MotionNoiseConfig(b_phi_per_m_rad=0.05)
     data = simulate(ROOM, SimConfig(motion=motion), seed=3, steps=80)
@@ -154,5 +154,3 @@ def test_simulator_and_filter_share_one_motion_model():
     for k in (1, 17, 55, 79):
         np.testing.assert_allclose(relative(odo[k - 1], odo[k]), data.odometry_increments[k], atol=1e-12)
         np.testing.assert_allclose(compose(odo[k - 1], data.odometry_increments[k]), odo[k], atol=1e-12)
-        inc = data.true_increments[k]
-        np.testing.assert_allclose(np.sqrt(np.diag(motion_noise(inc, motion))), increment_sigma(motion, inc)[0])

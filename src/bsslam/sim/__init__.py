@@ -14,7 +14,6 @@ from bsslam.sim.simulator import (
     SimConfig,
     SimulatedDataset,
     compose_increments,
-    increment_sigma,
     relative_increments,
     simulate,
 )
@@ -34,7 +33,6 @@ __all__ = [
     "World",
     "compose_increments",
     "get_world",
-    "increment_sigma",
     "relative_increments",
     "ray_cast",
     "rounded_rectangle_loop",

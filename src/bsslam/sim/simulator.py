@@ -20,6 +20,7 @@ from bsslam.dataset import Frame, SkipCounter
 from bsslam.errors import ConfigError
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.sim.worlds import World
+from bsslam.slam.motion import motion_sigmas   # the filter's own odometry noise model
 from bsslam.trajectory import Trajectory, wrap_angle
 
 
@@ -63,17 +64,6 @@ class SimConfig:
         full_turn = self.fov_rad >= 2 * math.pi - 1e-12
         n = round(self.fov_rad / self.resolution_rad) + (0 if full_turn else 1)
         return np.linspace(-self.fov_rad / 2, self.fov_rad / 2, n, endpoint=not full_turn)
-
-
-def increment_sigma(motion: MotionNoiseConfig, increments: np.ndarray) -> np.ndarray:
-    """(N, 3) odometry noise σ for robot-frame increments (N, 3) (Δx m, Δy m, Δφ rad):
-    ``σ_x = a_xy + b_xy|Δx|``, ``σ_y = a_xy + b_xy|Δy|``,
-    ``σ_φ = a_φ + b_φ|Δφ| + b_φ/m·|(Δx, Δy)|``."""
-    inc = np.asarray(increments, dtype=float).reshape(-1, 3)
-    sigma = np.empty_like(inc)
-    sigma[:, :2] = motion.a_xy_m + motion.b_xy * np.abs(inc[:, :2])
-    sigma[:, 2] = motion.a_phi_rad + motion.b_phi * np.abs(inc[:, 2]) + motion.b_phi_per_m_rad * np.hypot(inc[:, 0], inc[:, 1])
-    return sigma
 
 
 def relative_increments(poses: np.ndarray) -> np.ndarray:
@@ -165,7 +155,7 @@ def simulate(world: World, sim_config: SimConfig | None = None, seed: int = 0, s
     odo_rng, range_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
 
     true_inc = relative_increments(true_poses)
-    odo_inc = true_inc + increment_sigma(cfg.motion, true_inc) * odo_rng.standard_normal((n, 3))
+    odo_inc = true_inc + motion_sigmas(true_inc, cfg.motion) * odo_rng.standard_normal((n, 3))
     odo_inc[0] = 0.0  # the first frame is the starting point, not a motion
     odo_poses = np.vstack([true_poses[:1], compose_increments(true_poses[0], odo_inc[1:])])
 
