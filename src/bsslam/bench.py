@@ -13,6 +13,8 @@ from functools import partial
 from pathlib import Path
 from typing import Sequence
 
+import numpy as np
+
 from bsslam.config import SLAMConfig
 from bsslam.errors import BsslamError
 from bsslam.eval import ate, relations_error
@@ -92,8 +94,6 @@ class Stability:
 
 def stability(rows: Sequence["BenchRow | BenchFailure"]) -> list[Stability]:
     """Per log, the ATE spread over the runs of :func:`perturbations` (logs in first-seen order)."""
-    import numpy as np
-
     out = []
     for log in dict.fromkeys(r.log for r in rows if isinstance(r, BenchRow)):
         noisy = np.array([r.ate_m for r in rows if isinstance(r, BenchRow) and r.log == log
