@@ -343,6 +343,7 @@ Mode = Literal["slam", "localization"]
 #: The joint Gaussian's filter: "ekf" the paper's, "oc-ekf" the observability-constrained
 #: EKF (:mod:`bsslam.slam.oc_ekf`).
 EstimatorName = Literal["ekf", "oc-ekf"]
+BackendName = Literal["submaps", "ekf"]
 
 
 @dataclass(frozen=True)
@@ -617,6 +618,76 @@ class GridConfig:
 
 
 @dataclass(frozen=True)
+class SubmapConfig:
+    """The submap backend (``backend: submaps``): the paper's filter runs inside a local
+    submap of bounded size; full submaps are frozen and tied together by a pose graph
+    (GTSAM iSAM2) with loop closures found by matching submap against submap.
+
+    Attributes:
+        max_state_size: a submap is full when its filter's state reaches this dimension
+            (3 pose + 2 per control point). It bounds the per-scan cost (the covariance
+            update is O(n²)) and the live covariance's memory (8 n² bytes).
+        max_distance_m: … or when the robot has travelled this far in it (m): a submap
+            is a local map, its drift small.
+        point_spacing_m: spacing of the points sampled on a frozen submap's splines for
+            matching (m).
+        loop_sigmas: a loop-closure search covers this many σ of the relative pose
+            between the two submaps, as the pose graph's marginals give it.
+        loop_min_window_m: … and at least this far in x and y (m), for drift larger than
+            the filter admits;
+        loop_max_window_m: … and at most this far (m), bounding the search's cost.
+        loop_min_window_rad: the same bounds for the heading (rad).
+        loop_max_window_rad:
+        loop_max_candidates: old submaps matched against each newly frozen one, nearest
+            first (bounds the time per submap).
+        loop_min_inlier_fraction: a loop closure is accepted only if this fraction of
+            the query submap's points lie on the reference's splines after alignment.
+        loop_min_overlap_m: … and the matched wall length is at least this (m).
+        loop_max_ambiguity: … and the second-best distinct alignment scores at most this
+            fraction of the best (repetitive corridors match in several places).
+        loop_covariance_inflation: the matched relative pose's covariance is inflated by
+            this factor (its points are not independent).
+        robust_kernel_width: width of the Cauchy kernel on loop-closure factors in
+            whitened units (σ): a loop closure this many σ from the graph's consensus is
+            down-weighted by half.
+    """
+
+    max_state_size: int = 400
+    max_distance_m: float = 25.0
+    point_spacing_m: float = 0.05
+    loop_sigmas: float = 3.0
+    loop_min_window_m: float = 2.0
+    loop_max_window_m: float = 8.0
+    loop_min_window_rad: float = math.radians(20.0)
+    loop_max_window_rad: float = math.pi
+    loop_max_candidates: int = 4
+    loop_min_inlier_fraction: float = 0.6
+    loop_min_overlap_m: float = 8.0
+    loop_max_ambiguity: float = 0.9
+    loop_covariance_inflation: float = 10.0
+    robust_kernel_width: float = 3.0
+
+    def __post_init__(self) -> None:
+        _check(isinstance(self.max_state_size, int) and self.max_state_size >= 50,
+               "submaps.max_state_size must be an integer ≥ 50")
+        _check(self.max_distance_m > 0, "submaps.max_distance_m must be > 0")
+        _check(0 < self.point_spacing_m <= 1.0, "submaps.point_spacing_m must be in (0, 1] m")
+        _check(self.loop_sigmas > 0, "submaps.loop_sigmas must be > 0")
+        _check(0 < self.loop_min_window_m <= self.loop_max_window_m <= 100.0,
+               "submaps.loop_min_window_m ≤ loop_max_window_m must be in (0, 100] m")
+        _check(0 < self.loop_min_window_rad <= self.loop_max_window_rad <= math.pi,
+               "submaps.loop_min_window_rad ≤ loop_max_window_rad must be in (0, π]")
+        _check(isinstance(self.loop_max_candidates, int) and 0 <= self.loop_max_candidates <= 100,
+               "submaps.loop_max_candidates must be an integer in [0, 100] (0: no loop closure)")
+        _check(0 < self.loop_min_inlier_fraction <= 1, "submaps.loop_min_inlier_fraction must be in (0, 1]")
+        _check(self.loop_min_overlap_m >= 0, "submaps.loop_min_overlap_m must be ≥ 0")
+        _check(0 < self.loop_max_ambiguity <= 1, "submaps.loop_max_ambiguity must be in (0, 1]")
+        _check(1 <= self.loop_covariance_inflation <= MAX_FACTOR,
+               "submaps.loop_covariance_inflation must be in [1, 1e6]")
+        _check(self.robust_kernel_width > 0, "submaps.robust_kernel_width must be > 0")
+
+
+@dataclass(frozen=True)
 class SLAMConfig:
     """Everything the filter needs. ``mode`` is "slam" (full EKF-SLAM) or "localization"
     (localisation with map building: features fixed with zero uncertainty, paper §9).
@@ -633,6 +704,14 @@ class SLAMConfig:
             enters (the log readers, :meth:`bsslam.Mapper.add`): beams per scan, plausible
             speed and turn rate, coordinates, laser offset (see
             :class:`~bsslam.input_limits.InputLimits`).
+        backend: "submaps" (default): the filter runs in local submaps of bounded size tied
+            together by a pose graph with loop closures (:mod:`bsslam.submaps`), so memory
+            and time per scan stay bounded on any building; "ekf": the paper's single
+            global EKF over every spline (the experiments, small rooms).
+        submaps: the submap backend's parameters (:class:`SubmapConfig`).
+        max_memory_mb: budget for the live estimator arrays (MB): the covariance and the
+            frozen submaps. A run that would exceed it stops with a clear message and
+            writes its results so far.
         estimator: "ekf" (the paper's) or "oc-ekf": the observability-constrained EKF
             (Huang, Mourikis, Roumeliotis), whose linearisations keep global translation and
             rotation unobservable, so the map does not make the filter believe it knows its
@@ -648,6 +727,9 @@ class SLAMConfig:
     frontend: FrontendConfig = field(default_factory=FrontendConfig)
     grid: GridConfig = field(default_factory=GridConfig)
     input: InputLimits = field(default_factory=InputLimits)
+    submaps: SubmapConfig = field(default_factory=SubmapConfig)
+    backend: BackendName = "ekf"
+    max_memory_mb: float = 1024.0
     mode: Mode = "slam"
     initial_pose_sigma: tuple[float, float, float] = (0.0, 0.0, 0.0)
     relocalize: bool = True
@@ -655,6 +737,8 @@ class SLAMConfig:
 
     def __post_init__(self) -> None:
         _check(self.mode in ("slam", "localization"), f"mode must be 'slam' or 'localization', got {self.mode!r}")
+        _check(self.backend in ("submaps", "ekf"), f"backend must be 'submaps' or 'ekf', got {self.backend!r}")
+        _check(16.0 <= self.max_memory_mb <= 1e7, "max_memory_mb must be in [16, 1e7] MB")
         _check(self.estimator in ("ekf", "oc-ekf"), f"estimator must be 'ekf' or 'oc-ekf', got {self.estimator!r}")
         _check(isinstance(self.relocalize, bool), f"relocalize must be true or false, got {self.relocalize!r}")
         _check(len(self.initial_pose_sigma) == 3 and all(s >= 0 for s in self.initial_pose_sigma),
@@ -711,4 +795,5 @@ _SECTION_TYPES = {
     "frontend": FrontendConfig,
     "grid": GridConfig,
     "input": InputLimits,
+    "submaps": SubmapConfig,
 }
