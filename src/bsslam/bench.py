@@ -49,6 +49,11 @@ class BenchRow:
     peak_rss_mb: float
     #: the input as run: "as logged", "noise seed K" or "float32" (see :class:`Perturbation`)
     variant: str = "as logged"
+    #: the submap backend's submaps and accepted loop closures (0 with ``backend: ekf``)
+    submaps: int = 0
+    loop_closures: int = 0
+    #: why the run stopped early (the memory budget), or "" when it ran to the end
+    stopped: str = ""
 
 
 @dataclass(frozen=True)
@@ -144,7 +149,9 @@ def bench_log(log: Path, config: SLAMConfig, steps: int | None = None, progress=
     return BenchRow(log.name, result.steps, wall, 1000.0 * result.wall_time_s / max(result.steps, 1),
                     len(result.map), int(result.state_sizes.max()) if result.steps else 3, ate_m, online_m, odo_m, fe_m, rel,
                     resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
-                    perturbation.label if perturbation is not None else "as logged")
+                    perturbation.label if perturbation is not None else "as logged",
+                    result.totals.get("submaps", 0), result.totals.get("loop_closures", 0),
+                    result.stop_reason or ("interrupted" if result.interrupted else ""))
 
 
 def _bench_or_failure(job: tuple[Path, Perturbation | None], config: SLAMConfig,

@@ -195,6 +195,24 @@ def _load_config(config_file: Optional[Path]):
     return load_config(config_file) if config_file else SLAMConfig()
 
 
+BACKEND_HELP = ("submaps (default): local submaps tied by a pose graph with loop closures, bounded memory "
+                "and time per scan; ekf: the paper's single global EKF. Default: the configuration's.")
+MAX_MEMORY_HELP = ("Budget for the estimator's live arrays (MB); past it the run stops with a message and writes "
+                   "its results so far. Default: the configuration's max_memory_mb (1024).")
+
+
+def _overridden(config, mode: Optional[str] = None, backend: Optional[str] = None,
+                max_memory: Optional[float] = None):
+    """``config`` with the command line's overrides (checked as the configuration file's are)."""
+    from bsslam.config import SLAMConfig
+
+    data = config.to_dict()
+    for key, value in (("mode", mode), ("backend", backend), ("max_memory_mb", max_memory)):
+        if value is not None:
+            data[key] = value
+    return SLAMConfig.from_dict(data)
+
+
 def _print_version(value: bool) -> None:
     if value:
         typer.echo(f"bsslam {__version__}")
@@ -220,6 +238,8 @@ def simulate(
     steps: Optional[int] = typer.Option(None, min=1, help="Number of scans (default: the whole double loop)."),
     out: Path = typer.Option(Path("results/simulate"), help=OUT_HELP),
     config_file: Optional[Path] = typer.Option(None, "--config", help="YAML configuration of the filter."),
+    backend: Optional[str] = typer.Option(None, metavar="submaps|ekf", help=BACKEND_HELP),
+    max_memory: Optional[float] = typer.Option(None, "--max-memory", metavar="MB", help=MAX_MEMORY_HELP),
     list_worlds: bool = typer.Option(False, "--list", help="List the built-in worlds and exit."),
     viewer: Optional[str] = typer.Option(None, metavar="spawn|save",
                                          help="Show the run in rerun: spawn (live, in the viewer app) or save "
@@ -243,7 +263,7 @@ def simulate(
     try:
         with signals_interrupt():
             sim = SimConfig()
-            config = simulation_config(_load_config(config_file), sim)
+            config = simulation_config(_overridden(_load_config(config_file), None, backend, max_memory), sim)
             data = simulate_world(get_world(world), sim, seed=seed, steps=steps)
             with run_folder(out) as run_dir:
                 with progress_bar(f"SLAM in {world}", len(data.ground_truth), "scans") as update:
@@ -268,6 +288,8 @@ def run(
     config_file: Optional[Path] = typer.Option(None, "--config", help="YAML configuration of the filter."),
     out: Path = typer.Option(Path("results/run"), help=OUT_HELP),
     mode: Optional[str] = typer.Option(None, help="slam (default) or localization."),
+    backend: Optional[str] = typer.Option(None, metavar="submaps|ekf", help=BACKEND_HELP),
+    max_memory: Optional[float] = typer.Option(None, "--max-memory", metavar="MB", help=MAX_MEMORY_HELP),
     fmt: Optional[str] = typer.Option(None, "--format", help="carmen, ros1 or ros2 (default: from the path)."),
     strict: bool = typer.Option(False, help="Stop at the first bad input line instead of skipping it."),
     steps: Optional[int] = typer.Option(None, min=1, help="Process only the first N scans."),
@@ -303,9 +325,7 @@ def run(
     run_dir = None
     try:
         with signals_interrupt():
-            config = _load_config(config_file)
-            if mode is not None:
-                config = config.replace(mode=mode)
+            config = _overridden(_load_config(config_file), mode, backend, max_memory)
             data = open_dataset(log, format=fmt, strict=strict, scan_topic=scan_topic, odom_topic=odom_topic,
                                 reader_config=ReaderConfig(limits=config.input))
             ref = read_trajectory(reference) if reference else None
@@ -371,6 +391,8 @@ def bench(
     config_file: Optional[Path] = typer.Option(None, "--config", help="YAML configuration (the same for every log)."),
     steps: Optional[int] = typer.Option(None, min=1, help="Only the first N scans of each log."),
     mode: Optional[str] = typer.Option(None, help="slam or localization (default: the configuration's)."),
+    backend: Optional[str] = typer.Option(None, metavar="submaps|ekf", help=BACKEND_HELP),
+    max_memory: Optional[float] = typer.Option(None, "--max-memory", metavar="MB", help=MAX_MEMORY_HELP),
     workers: Optional[int] = typer.Option(None, help=WORKERS_HELP),
     scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
     perturb: int = typer.Option(0, min=0, help="Run each log N times with every range moved by seeded "
@@ -387,23 +409,23 @@ def bench(
             raise ConfigError("name the logs (bsslam bench LOGS...) or their folder (--data DIR, or the "
                               "BSSLAM_DATA environment variable)")
         found = find_logs(logs or [data])
-        config = _load_config(config_file)
-        if mode is not None:
-            config = config.replace(mode=mode)
+        config = _overridden(_load_config(config_file), mode, backend, max_memory)
         runs = perturbations(perturb, perturb_sigma) if perturb else []
         with progress_bar(f"bench: {len(found)} log(s)", len(found) * max(len(runs), 1), "runs") as update:
             rows = bench_logs(found, config, steps=steps, workers=workers, scheduler=scheduler, progress=update,
                               perturb=runs)
     except BsslamError as exc:
         fail(exc)
-    table = Table("log", "input", "scans", "wall s", "ms/scan", "splines", "max state", "ATE m", "online ATE m",
-                  "odometry ATE m", "front end ATE m", "relations (Intel)", title=f"bsslam bench ({config.mode})")
+    table = Table("log", "input", "scans", "wall s", "ms/scan", "splines", "max state", "submaps", "loops",
+                  "peak RSS MB", "ATE m", "online ATE m", "odometry ATE m", "front end ATE m", "relations (Intel)",
+                  title=f"bsslam bench ({config.mode}, backend {config.backend})")
     for row in rows:
         if isinstance(row, BenchFailure):
             console.print(f"[red]{escape(row.log)}: {escape(row.message)}[/red]", soft_wrap=True)
             continue
-        table.add_row(row.log, row.variant, str(row.scans), f"{row.wall_s:.1f}", f"{row.ms_per_scan:.1f}", str(row.splines),
-                      str(row.state_size), f"{row.ate_m:.3f}", f"{row.online_ate_m:.3f}", f"{row.odometry_ate_m:.3f}", f"{row.frontend_ate_m:.3f}",
+        table.add_row(row.log, row.variant, str(row.scans) + (" (stopped)" if row.stopped else ""),
+                      f"{row.wall_s:.1f}", f"{row.ms_per_scan:.1f}", str(row.splines), str(row.state_size),
+                      str(row.submaps), str(row.loop_closures), f"{row.peak_rss_mb:.0f}", f"{row.ate_m:.3f}", f"{row.online_ate_m:.3f}", f"{row.odometry_ate_m:.3f}", f"{row.frontend_ate_m:.3f}",
                       row.relations)
     Console(width=max(Console().width, 150)).print(table)
     if perturb:
@@ -415,6 +437,9 @@ def bench(
                            f"{st.float32_m:.3f}", f"{st.spread:.2f}", f"{st.worst_ratio:.2f}")
         Console(width=max(Console().width, 150)).print(spread)
     ran = [row for row in rows if not isinstance(row, BenchFailure)]
+    for row in ran:
+        if row.stopped:
+            console.print(f"[yellow]{escape(row.log)}: {escape(row.stopped)}[/yellow]", soft_wrap=True)
     if ran:
         console.print(f"peak memory (max RSS) of the processes that ran the logs: "
                       f"{max(row.peak_rss_mb for row in ran):.0f} MB")

@@ -738,7 +738,7 @@ class SLAMConfig:
     def __post_init__(self) -> None:
         _check(self.mode in ("slam", "localization"), f"mode must be 'slam' or 'localization', got {self.mode!r}")
         _check(self.backend in ("submaps", "ekf"), f"backend must be 'submaps' or 'ekf', got {self.backend!r}")
-        _check(16.0 <= self.max_memory_mb <= 1e7, "max_memory_mb must be in [16, 1e7] MB")
+        _check(1.0 <= self.max_memory_mb <= 1e7, "max_memory_mb must be in [1, 1e7] MB")
         _check(self.estimator in ("ekf", "oc-ekf"), f"estimator must be 'ekf' or 'oc-ekf', got {self.estimator!r}")
         _check(isinstance(self.relocalize, bool), f"relocalize must be true or false, got {self.relocalize!r}")
         _check(len(self.initial_pose_sigma) == 3 and all(s >= 0 for s in self.initial_pose_sigma),

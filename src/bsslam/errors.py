@@ -45,3 +45,15 @@ class FilterError(BsslamError, RuntimeError):
 
 class MissingDependencyError(BsslamError, ImportError):
     """An optional dependency is not installed; the message names the extra to install."""
+
+
+class MemoryBudgetError(BsslamError, MemoryError):
+    """The estimator's live arrays would exceed the memory budget (``max_memory_mb``).
+
+    Attributes:
+        nbytes: the bytes they need(ed).
+    """
+
+    def __init__(self, message: str, nbytes: int = 0):
+        self.nbytes = int(nbytes)
+        super().__init__(message)

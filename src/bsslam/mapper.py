@@ -37,6 +37,7 @@ from bsslam.scan import LaserScan
 from bsslam.se2 import between, compose, compose_with_covariance
 from bsslam.slam import MapSpline, SplineSLAM
 from bsslam.spline import BSplineCurve
+from bsslam.submaps.backend import SubmapSLAM
 from bsslam.trajectory import Trajectory
 from bsslam.viz.null_viewer import NullViewer
 
@@ -74,8 +75,11 @@ class RunResult:
         skipped: the reader's skipped-input counter.
         scans: one (LaserScan, laser_offset (3,)) per frame, aligned with ``trajectory``.
         interrupted: the run was ended early (KeyboardInterrupt, or SIGTERM turned into
-            one): the arrays hold the scans processed until then and the second pass did
-            not run.
+            one, or the memory budget): the arrays hold the scans processed until then and
+            the second pass did not run.
+        stop_reason: why it ended early (None: it did not, or by an interrupt).
+        submaps: the submap backend's global layer (None with ``backend: ekf``).
+        step_submaps: (N,) the submap of each scan (zeros with ``backend: ekf``).
     """
 
     name: str
@@ -97,6 +101,9 @@ class RunResult:
 
     relocalize_time_s: float = 0.0
     interrupted: bool = False
+    stop_reason: str | None = None
+    submaps: SubmapSLAM | None = None
+    step_submaps: np.ndarray | None = None
 
     @property
     def steps(self) -> int:
@@ -168,6 +175,7 @@ class _Record:
     replay: _Replayed
     scan: LaserScan
     laser_offset: np.ndarray
+    submap: int = 0        # the submap its pose is relative to (``backend: submaps``)
 
 
 class _OdometryMotion:
@@ -249,7 +257,7 @@ class Mapper:
     """
 
     def __init__(self, config: SLAMConfig | None = None, initial_pose=None, viewer: Viewer | None = None,
-                 *, slam: SplineSLAM | None = None, limits: InputLimits | None = None,
+                 *, slam: SplineSLAM | SubmapSLAM | None = None, limits: InputLimits | None = None,
                  strict: bool = False) -> None:
         self.config = config or SLAMConfig()
         self.viewer = viewer if viewer is not None else NullViewer()
@@ -267,8 +275,9 @@ class Mapper:
 
     # -- views --------------------------------------------------------------------------
     @property
-    def slam(self) -> SplineSLAM | None:
-        """The online filter (None before the first scan)."""
+    def slam(self) -> SplineSLAM | SubmapSLAM | None:
+        """The online filter (None before the first scan): the paper's global EKF
+        (``backend: ekf``) or the submap backend."""
         return self._slam
 
     @property
@@ -282,11 +291,7 @@ class Mapper:
     def curves(self) -> list[BSplineCurve]:
         """The current map splines' curves (world frame, m), without covariances; reading
         them leaves the filter untouched."""
-        if self._slam is None:
-            return []
-        # SplineSLAM.map would fold the covariance (see map): the curves need the mean only.
-        x = self._slam.state.x
-        return [feature.curve(x) for feature in self._slam.features.values()]
+        return [] if self._slam is None else self._slam.curves
 
     @property
     def scans(self) -> int:
@@ -364,7 +369,8 @@ class Mapper:
         """The front end, the update schedule and (on the scans it picks) the filter."""
         if self._slam is None:
             start = frame.odometry if self._initial_pose is None else self._initial_pose
-            self._slam = SplineSLAM(self.config, initial_pose=start)
+            submaps = self.config.backend == "submaps" and self.config.mode == "slam"
+            self._slam = (SubmapSLAM if submaps else SplineSLAM)(self.config, initial_pose=start)
         slam = self._slam
         if self._first is None:
             self._first = slam.pose, slam.pose_covariance
@@ -382,13 +388,16 @@ class Mapper:
         counts = {} if counter is None else {counter: 1}
         if report is not None:
             _add_report(counts, report)
+        submap = 0
+        if isinstance(slam, SubmapSLAM):   # a step's scan may have ended its submap: it belongs to that one
+            submap = slam.step_submap if run_filter else slam.submap_index
         return _Record(frame.stamp, pose, cov, frame.odometry, self._motion.pose(), step_time, slam.state_size,
                        report.nis if report else 0.0, report.nis_dof if report else 0, counts, replay,
-                       frame.scan, frame.laser_offset)
+                       frame.scan, frame.laser_offset, submap)
 
     def finish(self, *, name: str = "mapper", ground_truth: Trajectory | None = None,
                skipped: SkipCounter | None = None, point_stride: int = 4, progress: Progress = _no_progress,
-               interrupted: bool = False) -> RunResult:
+               interrupted: bool = False, stop_reason: str | None = None) -> RunResult:
         """The run so far as a :class:`RunResult`, after the second pass when
         ``config.relocalize`` is on. Call it once, at the end.
 
@@ -399,6 +408,7 @@ class Mapper:
             progress: progress of the second pass (done, total scans).
             interrupted: the run was cut short: skip the second pass and mark the result.
                 A KeyboardInterrupt during the second pass does the same.
+            stop_reason: why it was cut short, for the result (e.g. the memory budget).
         """
         records = self._records
         n = len(records)
@@ -413,14 +423,28 @@ class Mapper:
         for r in records:
             for key, count in r.counts.items():
                 totals[key] = totals.get(key, 0) + count
+        submaps = self._slam if isinstance(self._slam, SubmapSLAM) else None
+        if submaps is not None and not interrupted:
+            t0 = time.perf_counter()
+            with _one_blas_thread():
+                submaps.finish()     # the last submap frozen, its loop closures found
+            if records:      # counted as the last scan's time: it is part of the first pass
+                records[-1] = dataclasses.replace(records[-1], step_time_s=records[-1].step_time_s
+                                                  + time.perf_counter() - t0)
+        if submaps is not None:
+            _add_submap_stats(totals, submaps)
         final_map = self.map
         relocalized, relocalize_time, points = None, 0.0, None
         if self.config.relocalize and n and not interrupted:
             t0 = time.perf_counter()
             try:
                 with _one_blas_thread():
-                    relocalized, points = relocalize(final_map, [r.replay for r in records], stamps, self.config,
-                                                     *self._first, point_stride, progress)
+                    if submaps is not None:
+                        relocalized, points = relocalize_submaps(submaps, records, self.config, point_stride,
+                                                                 progress)
+                    else:
+                        relocalized, points = relocalize(final_map, [r.replay for r in records], stamps,
+                                                         self.config, *self._first, point_stride, progress)
                 relocalize_time = time.perf_counter() - t0
             except KeyboardInterrupt:
                 interrupted = True
@@ -437,6 +461,8 @@ class Mapper:
             points=np.vstack(points) if points else np.empty((0, 2)),
             skipped=skipped if skipped is not None else self.skipped,
             scans=[(r.scan, r.laser_offset) for r in records], interrupted=interrupted,
+            stop_reason=stop_reason, submaps=submaps,
+            step_submaps=np.array([r.submap for r in records], dtype=int),
         )
         self.viewer.finish(result)
         return result
@@ -468,6 +494,65 @@ def relocalize(splines: list[MapSpline], replay: list[_Replayed], stamps: np.nda
         progress(i + 1, len(replay))
     n = len(poses)
     return Trajectory(stamps, np.array(poses).reshape(n, 3), np.array(covs).reshape(n, 3, 3)), points
+
+
+def relocalize_submaps(slam: SubmapSLAM, records: list[_Record], config: SLAMConfig, point_stride: int = 0,
+                       progress: Progress = _no_progress) -> tuple[Trajectory, list[np.ndarray]]:
+    """The second pass of the submap backend: each submap's scans localised again in its
+    own final map (:func:`relocalize`, in its frame, from its base at the origin), then
+    put in the map frame by the optimised base pose, with the base's marginal covariance
+    composed in. Submap k > 0 starts at the scan that ended submap k − 1.
+
+    Returns the trajectory (one pose per record) and, with ``point_stride``, the filter
+    steps' scan points (map frame).
+    """
+    n = len(records)
+    poses, covs = np.empty((n, 3)), np.empty((n, 3, 3))
+    points: list[np.ndarray] = []
+    submap_of = np.array([r.submap for r in records])
+    seed: _Record | None = None   # the last filter step of the previous submap
+    done = 0
+    for k in np.unique(submap_of):
+        idx = np.flatnonzero(submap_of == k)
+        replay = [records[i].replay for i in idx]
+        stamps = np.array([records[i].stamp for i in idx])
+        if seed is not None:
+            replay.insert(0, dataclasses.replace(seed.replay, delta=None, covariance=None))
+            stamps = np.r_[seed.stamp, stamps]
+        local, local_points = relocalize(slam.local_map(int(k)), replay, stamps, config, np.zeros(3),
+                                         np.zeros((3, 3)), point_stride)
+        skip = 0 if seed is None else 1
+        if point_stride:
+            local_points = local_points[skip:]
+        base, base_cov = slam.base_of(int(k))
+        for j, i in enumerate(idx):
+            poses[i], covs[i] = compose_with_covariance(base, base_cov, local.poses[skip + j],
+                                                        local.covariances[skip + j])
+        points += [_transform_points(base, p) for p in local_points]
+        steps = [i for i in idx if records[i].replay.scan is not None]
+        seed = records[steps[-1]] if steps else seed
+        done += idx.size
+        progress(done, n)
+    stamps = np.array([r.stamp for r in records])
+    return Trajectory(stamps, poses, covs), points
+
+
+def _transform_points(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(k, 2) points of the frame at ``pose`` (3,) in the parent frame."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    return pose[:2] + points @ np.array([[c, s], [-s, c]])
+
+
+def _add_submap_stats(totals: dict[str, int], slam: SubmapSLAM) -> None:
+    """The global layer's counters: submaps, loop-closure candidates, accepted and
+    down-weighted loop closures, rejections by reason."""
+    stats = slam.stats
+    totals["submaps"] = len(slam.frozen) + (1 if slam.local.steps > slam._seed_steps else 0)
+    totals["loop_candidates"] = stats.loop_candidates
+    totals["loop_closures"] = stats.loop_closures
+    totals["loop_closures_downweighted"] = int(np.count_nonzero(slam.loop_weights() < 0.5))
+    for reason, count in stats.loop_rejections.items():
+        totals[f"loop_rejected_{reason}"] = count
 
 
 def _pose(value, name: str) -> np.ndarray:

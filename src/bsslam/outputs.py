@@ -12,6 +12,7 @@ import numpy as np
 
 from bsslam.config import SLAMConfig
 from bsslam.eval import ate, pose_errors
+from bsslam.io.atomic_file import atomic_write
 from bsslam.io.config_file import write_config
 from bsslam.io.grid import build_occupancy_grid, write_grid
 from bsslam.io.map_file import write_map_json
@@ -51,6 +52,7 @@ def summarize(result: RunResult, reference: Trajectory | None = None, exact_refe
         "ms_per_step": round(1000.0 * result.wall_time_s / max(result.steps, 1), 3),
         "splines": len(result.map),
         "control_points": int(n_cp),
+        "backend": "submaps" if getattr(result, "submaps", None) is not None else "ekf",
         "state_size": int(result.state_sizes[-1]) if result.steps else 3,
         "max_state_size": int(result.state_sizes.max()) if result.steps else 3,
         **{k: int(v) for k, v in sorted(result.totals.items())},
@@ -58,6 +60,9 @@ def summarize(result: RunResult, reference: Trajectory | None = None, exact_refe
         "skipped_input_by_reason": dict(result.skipped.counts),
         "ignored_input": dict(result.skipped.ignored),   # message types the reader does not use
     }
+    if getattr(result, "submaps", None) is not None:
+        # splines of two submaps on one wall are one surface: the map's walls counted once
+        summary["surfaces"] = len({m.surface for m in result.map})
     if ref is not None and len(ref) and result.steps:
         rmse, matched, _ = ate(est, ref)
         summary["ate_m"] = round(float(rmse), 5)
@@ -96,6 +101,20 @@ def write_vector_maps(run_dir: Path, splines) -> None:
     write_map_geojson(run_dir / "map.geojson", splines)
 
 
+def write_steps_csv(path: Path, result: RunResult) -> None:
+    """``steps.csv``: one row per scan — stamp (s), the time spent on it (ms: front end and,
+    where it ran, the filter; a submap's freeze and loop closure count on the scan that
+    ended it), the state dimension after it, its submap (0 with ``backend: ekf``), the
+    update's NIS and its degrees of freedom (0: no filter step)."""
+    submap = getattr(result, "step_submaps", None)
+    submap = np.zeros(result.steps, dtype=int) if submap is None else submap
+    with atomic_write(path, "w", newline="") as f:
+        f.write("stamp_s,time_ms,state_size,submap,nis,nis_dof\n")
+        for row in zip(result.estimate.stamps, result.step_times_s, result.state_sizes, submap, result.nis,
+                       result.nis_dof):
+            f.write(f"{row[0]:.6f},{1000 * row[1]:.4f},{row[2]},{row[3]},{row[4]:.6g},{row[5]}\n")
+
+
 def write_outputs(result: RunResult, run_dir: Path, config: SLAMConfig, *, walls=None,
                   reference: Trajectory | None = None, exact_reference: bool = False,
                   title: str = "", show_control_points: bool = False) -> dict:
@@ -117,6 +136,7 @@ def write_outputs(result: RunResult, run_dir: Path, config: SLAMConfig, *, walls
     if result.relocalized is not None:
         write_tum(run_dir / "trajectory_online.tum", result.estimate)
         write_pose_covariance_csv(run_dir / "pose_covariance_online.csv", result.estimate)
+    write_steps_csv(run_dir / "steps.csv", result)
     write_tum(run_dir / "odometry.tum", result.odometry)
     if result.frontend is not None:
         write_tum(run_dir / "frontend.tum", result.frontend)
@@ -136,6 +156,7 @@ def write_outputs(result: RunResult, run_dir: Path, config: SLAMConfig, *, walls
     )
     summary = summarize(result, reference, exact_reference)
     if getattr(result, "interrupted", False):
+        why = getattr(result, "stop_reason", None) or "interrupted"
         return write_summary(run_dir, summary, "interrupted",
-                             f"interrupted after {result.steps} scans; the files hold those scans")
+                             f"{why}: stopped after {result.steps} scans; the files hold those scans")
     return write_summary(run_dir, summary, "complete")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from bsslam.config import SLAMConfig
 from bsslam.dataset import Dataset
+from bsslam.errors import MemoryBudgetError
 from bsslam.mapper import Mapper, Progress, RunResult, Viewer, _no_progress, relocalize
 from bsslam.slam import SplineSLAM
 
@@ -28,7 +29,9 @@ def run_dataset(dataset: Dataset, config: SLAMConfig, *, steps: int | None = Non
 
     A KeyboardInterrupt while reading or processing the frames (Ctrl-C; the CLI turns
     SIGTERM into one too) ends the run early: the result holds the frames processed so
-    far, the second pass is skipped and ``RunResult.interrupted`` is True.
+    far, the second pass is skipped and ``RunResult.interrupted`` is True. A run that
+    reaches the memory budget (``max_memory_mb``) ends the same way, the budget's message
+    in ``RunResult.stop_reason``.
 
     Args:
         point_stride: keep every k-th valid beam of every scan for ``RunResult.points``.
@@ -37,7 +40,7 @@ def run_dataset(dataset: Dataset, config: SLAMConfig, *, steps: int | None = Non
         viewer: shown every scan and the result (see :class:`bsslam.mapper.Viewer`).
     """
     mapper = Mapper(config, viewer=viewer, slam=slam)
-    interrupted = False
+    interrupted, reason = False, None
     try:
         for i, frame in enumerate(dataset):
             if steps is not None and i >= steps:
@@ -46,6 +49,8 @@ def run_dataset(dataset: Dataset, config: SLAMConfig, *, steps: int | None = Non
             progress(i + 1, total)
     except KeyboardInterrupt:
         interrupted = True
+    except MemoryBudgetError as exc:   # the results so far are kept, with the reason
+        interrupted, reason = True, str(exc)
     return mapper.finish(name=getattr(dataset, "name", "dataset"), ground_truth=dataset.ground_truth,
                          skipped=dataset.skipped, point_stride=point_stride, progress=relocalize_progress,
-                         interrupted=interrupted)
+                         interrupted=interrupted, stop_reason=reason)

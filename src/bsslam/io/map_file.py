@@ -8,7 +8,8 @@ Layout::
      "covariance_order": "x_0..x_{n-1}, y_0..y_{n-1}",
      "metadata": {...},                      # free-form, e.g. the run it came from
      "splines": [{"id": 3, "order": 4, "degree": 3, "knots": [...],
-                  "control_points": [[x, y], ...], "covariance": [[...], ...] | null}]}
+                  "control_points": [[x, y], ...], "covariance": [[...], ...] | null,
+                  "submap": 0, "surface": 3}]}    # submap, surface: optional
 
 Knots are in metres because the paper parameterises by chord length.
 """
@@ -105,6 +106,11 @@ def write_map_json(target: PathOrFile, splines: Iterable[Any],
             "control_points": points.tolist(),
             "covariance": None if cov is None else cov.tolist(),
         })
+        # the submap backend's: the submap a spline was mapped in (its covariance is
+        # relative to that submap's base) and the surface it shares with other submaps
+        for key in ("submap", "surface"):
+            if getattr(spline, key, None) is not None:
+                records[-1][key] = int(getattr(spline, key))
     document = {
         "format": MAP_FORMAT,
         "version": MAP_VERSION,

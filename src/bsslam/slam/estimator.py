@@ -82,6 +82,11 @@ class Estimator(Protocol):
     size: int
     pose: np.ndarray
     pose_covariance: np.ndarray
+    nbytes: int     # bytes of its live arrays
+
+    def limit_memory(self, max_bytes: int | None) -> None:
+        """Growth of the state past ``max_bytes`` of live arrays raises
+        :class:`~bsslam.errors.MemoryBudgetError` before allocating (None: no limit)."""
 
     def predict(self, delta: np.ndarray, Q: np.ndarray) -> None:
         """The pose moves by the robot-frame increment ``delta`` (3,) with covariance Q (3, 3)."""
@@ -145,6 +150,13 @@ class CompressedEKF:
     @property
     def size(self) -> int:
         return self.joint.size
+
+    @property
+    def nbytes(self) -> int:
+        return self.joint.nbytes
+
+    def limit_memory(self, max_bytes: int | None) -> None:
+        self.joint.max_bytes = max_bytes
 
     @property
     def pose(self) -> np.ndarray:

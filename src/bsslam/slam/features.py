@@ -65,11 +65,17 @@ class MapSpline:
         curve: the spline (world frame, m).
         covariance: (2n, 2n) covariance of [x_0 … x_{n−1}, y_0 … y_{n−1}] (m²); zeros in
             localisation mode.
+        submap: the submap it was mapped in (``backend: submaps``; 0 otherwise); its
+            covariance is relative to that submap's base pose.
+        surface: splines of different submaps lying on one another share this id (the
+            same wall mapped twice); None when not computed.
     """
 
     id: int
     curve: BSplineCurve
     covariance: np.ndarray
+    submap: int = 0
+    surface: int | None = None
 
     @property
     def order(self) -> int:

@@ -29,7 +29,7 @@ from bsslam.slam.motion import motion_noise
 from bsslam.slam.oc_ekf import OCEKF
 from bsslam.slam.spline_map import SplineMap
 from bsslam.slam.state import POSE
-from bsslam.spline import FitResult, extend_curve, fit_curve
+from bsslam.spline import BSplineCurve, FitResult, extend_curve, fit_curve
 from bsslam.spline.batch import closest_points_batch, curve_table
 
 
@@ -97,6 +97,7 @@ class SplineSLAM:
             initial_covariance = np.diag(np.square(self.config.initial_pose_sigma))
         self.state: Estimator = estimator(np.asarray(initial_pose, dtype=float),
                                           np.asarray(initial_covariance, dtype=float))
+        self.state.limit_memory(int(self.config.max_memory_mb * 2 ** 20))
         self.spline_map = SplineMap()
         self.steps = 0
         self._features: ScanFeatures | None = None   # the current scan's
@@ -144,6 +145,13 @@ class SplineSLAM:
     @property
     def state_size(self) -> int:
         return self.state.size
+
+    @property
+    def curves(self) -> list[BSplineCurve]:
+        """The map splines' curves (world frame, m), without covariances: reading them
+        leaves the filter untouched (:attr:`map` folds the pending covariance update)."""
+        x = self.state.x
+        return [feature.curve(x) for feature in self.features.values()]
 
     @property
     def map(self) -> list[MapSpline]:

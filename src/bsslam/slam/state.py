@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bsslam.errors import FilterError
+from bsslam.errors import FilterError, MemoryBudgetError
 from bsslam.slam.kernels import take_block
 
 POSE = np.arange(3)
@@ -98,6 +98,7 @@ class JointState:
         self._bg_slot = np.full(capacity, -1, dtype=np.intp)   # row of _bg holding index j, or −1
         self._bg_count = 0
         self.size = 3
+        self.max_bytes: int | None = None   # growth beyond this raises MemoryBudgetError
         self._x[:3] = np.asarray(pose, dtype=float)
         C = np.asarray(pose_covariance, dtype=float)
         self._P[:3, :3] = 0.5 * (C + C.T)   # exactly symmetric: rows are served as columns
@@ -134,6 +135,12 @@ class JointState:
     @property
     def capacity(self) -> int:
         return self._x.shape[0]
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the state's buffers (the covariance's dominate: 8 capacity² bytes)."""
+        return sum(a.nbytes for a in (self._x, self._P, self._B, self._G, self._reg, self._E, self._epos,
+                                      self._PE, self._K, self._bg, self._bg_index, self._bg_slot))
 
     @property
     def pose(self) -> np.ndarray:
@@ -416,6 +423,14 @@ class JointState:
         capacity = self.capacity
         while capacity < new_size:
             capacity *= 2
+        # old and new buffers coexist while copying: check before allocating, so a map too
+        # large for the budget is a clear error, never a MemoryError deep in numpy
+        grown = 8 * capacity * (capacity + ROW_PAD + self._B.shape[1] + 3)
+        if self.max_bytes is not None and self.nbytes + grown > self.max_bytes:
+            raise MemoryBudgetError(
+                f"the joint covariance would grow to {capacity} × {capacity} ({grown / 2 ** 20:.0f} MB, "
+                f"{(self.nbytes + grown) / 2 ** 20:.0f} MB while copying) for a state of {new_size}, beyond "
+                f"the budget of {self.max_bytes / 2 ** 20:.0f} MB (max_memory_mb)", self.nbytes + grown)
         n = self.size
         x = np.zeros(capacity)
         P = np.zeros((capacity, capacity + ROW_PAD))

@@ -1,0 +1,381 @@
+"""BS-SLAM in submaps: the paper's filter inside local maps of bounded size, tied together
+by a pose graph with loop closures between them (``backend: submaps``).
+
+The paper's single EKF keeps every spline ever seen in one joint covariance: its memory
+grows with the square of the map and its time per scan with the map, and once the drift
+around a large loop exceeds what the association gates accept the old walls are mapped
+again beside themselves. Here:
+
+- **Local filter.** :class:`~bsslam.slam.SplineSLAM` runs in the current submap's own
+  frame, starting at the robot's pose with zero covariance. The submap is *full* when its
+  state reaches ``submaps.max_state_size`` or the robot has travelled
+  ``submaps.max_distance_m`` in it.
+- **Freezing.** A full submap keeps only its splines with their covariance blocks (its own
+  frame), the points sampled on them for matching, and the robot's final pose in it with
+  its covariance: the odometry-like constraint to the next submap, which starts at that
+  pose from the same scan (its splines seed the new map).
+- **Global layer.** The submaps' base poses are the nodes of a
+  :class:`~bsslam.submaps.pose_graph.PoseGraph` (GTSAM iSAM2).
+- **Loop closure.** A newly frozen submap is matched against the old submaps whose area it
+  may overlap given the graph's uncertainty (:func:`~bsslam.submaps.loop_closure.match_submaps`:
+  a wide correlative search on the old submap's spline points, then verification); every
+  accepted match is a robust (Cauchy) factor, so a wrong one the rest of the graph
+  disagrees with is down-weighted.
+- **One map out.** Each submap's splines in its optimised frame; splines that lie on one
+  another in two submaps are marked as one surface (:func:`mark_surfaces`).
+
+Live memory is the current submap's covariance (8 n² bytes, n ≤ ``max_state_size`` plus
+one scan's growth) plus the frozen submaps' compact arrays; :attr:`SubmapSLAM.nbytes`
+counts them and a run past ``max_memory_mb`` stops with :class:`MemoryBudgetError`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from bsslam.config import SLAMConfig
+from bsslam.errors import MemoryBudgetError
+from bsslam.scan import LaserScan
+from bsslam.se2 import between, compose, compose_with_covariance
+from bsslam.slam import MapSpline, SplineSLAM
+from bsslam.slam.filter import StepReport
+from bsslam.spline import BSplineCurve
+from bsslam.submaps.loop_closure import SubmapShape, match_submaps
+from bsslam.submaps.pose_graph import PoseGraph
+
+#: Prior σ on the first base pose when the configuration gives none: the map frame is
+#: defined by it, but the optimiser needs a proper (invertible) prior.
+_ANCHOR_SIGMA = 1e-6
+
+
+@dataclass(frozen=True)
+class FrozenSubmap:
+    """A full submap: all the global layer keeps of it.
+
+    Attributes:
+        index: its node in the pose graph.
+        splines: its splines in its own frame, each with its covariance block (m²).
+        shape: the points sampled on them, for loop-closure matching.
+        end_pose: (3,) the robot's pose at the freeze in the submap's frame (the next
+            submap's base), and ``end_covariance`` (3, 3) its covariance.
+        filter_steps: scans the filter processed in it.
+    """
+
+    index: int
+    splines: list[MapSpline]
+    shape: SubmapShape
+    end_pose: np.ndarray
+    end_covariance: np.ndarray
+    filter_steps: int
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of its arrays (splines, covariance blocks, matching points)."""
+        n = sum(s.curve.control_points.nbytes + s.curve.knots.nbytes + s.covariance.nbytes for s in self.splines)
+        return int(n + self.shape.points.nbytes + self.shape.normals.nbytes)
+
+
+@dataclass(frozen=True)
+class LoopRecord:
+    """One loop-closure attempt that was accepted into the graph.
+
+    Attributes:
+        reference, query: the submaps (graph nodes); ``relative`` (3,) is the query's base
+            in the reference's frame, ``covariance`` (3, 3) its covariance.
+        inlier_fraction, overlap_m: the match's verification figures.
+        loop_id: the factor's id in the graph (its robust weight: ``PoseGraph.loop_weights``).
+    """
+
+    reference: int
+    query: int
+    relative: np.ndarray
+    covariance: np.ndarray
+    inlier_fraction: float
+    overlap_m: float
+    loop_id: int
+
+
+@dataclass
+class SubmapStats:
+    """Counters of the global layer (added to a run's totals)."""
+
+    submaps: int = 1
+    loop_candidates: int = 0
+    loop_closures: int = 0
+    loop_rejections: dict[str, int] = field(default_factory=dict)
+
+
+class SubmapSLAM:
+    """BS-SLAM in local submaps with a pose graph over them; the interface the mapper uses
+    of :class:`~bsslam.slam.SplineSLAM` (``step``, ``pose``, ``pose_covariance``,
+    ``state_size``, ``map``, ``curves``), in the global frame.
+
+    >>> slam = SubmapSLAM(SLAMConfig())
+    >>> report = slam.step(None, scan)            # doctest: +SKIP
+    >>> slam.pose, slam.pose_covariance, slam.map  # doctest: +SKIP
+
+    Args:
+        config: the filter's configuration and ``config.submaps``.
+        initial_pose: (3,) the first base pose in the map frame (x m, y m, φ rad).
+        initial_covariance: (3, 3) its covariance; from ``config.initial_pose_sigma`` by default.
+    """
+
+    def __init__(self, config: SLAMConfig | None = None, initial_pose=(0.0, 0.0, 0.0),
+                 initial_covariance: np.ndarray | None = None) -> None:
+        self.config = config or SLAMConfig()
+        if initial_covariance is None:
+            initial_covariance = np.diag(np.square(self.config.initial_pose_sigma))
+        anchor = np.asarray(initial_covariance, dtype=float) + np.eye(3) * _ANCHOR_SIGMA ** 2
+        self.graph = PoseGraph(np.asarray(initial_pose, dtype=float), anchor,
+                               robust_kernel_width=self.config.submaps.robust_kernel_width)
+        self.frozen: list[FrozenSubmap] = []
+        self.loops: list[LoopRecord] = []
+        self.stats = SubmapStats()
+        self._max_bytes = int(self.config.max_memory_mb * 2 ** 20)
+        self._bases = self.graph.poses()               # (k, 3) optimised base poses
+        self._base_cov = self.graph.covariance(0)      # the current base's marginal
+        self._local = self._new_local()
+        self._distance = 0.0
+        self.step_submap = 0     # the submap the last step's scan was localised in
+        self.steps = 0
+
+    # -- views --------------------------------------------------------------------------
+    @property
+    def submap_index(self) -> int:
+        """The current submap (graph node of its base)."""
+        return len(self.frozen)
+
+    @property
+    def local(self) -> SplineSLAM:
+        """The current submap's filter (its own frame)."""
+        return self._local
+
+    @property
+    def base(self) -> np.ndarray:
+        """(3,) the current submap's base pose in the map frame, as last optimised."""
+        return self._bases[self.submap_index].copy()
+
+    @property
+    def pose(self) -> np.ndarray:
+        """(3,) the robot's pose in the map frame."""
+        return compose(self._bases[self.submap_index], self._local.pose)
+
+    @property
+    def pose_covariance(self) -> np.ndarray:
+        """(3, 3) its covariance: the base's marginal (optimiser) composed with the local one."""
+        return compose_with_covariance(self._bases[self.submap_index], self._base_cov,
+                                       self._local.pose, self._local.pose_covariance)[1]
+
+    @property
+    def state_size(self) -> int:
+        """The local filter's state dimension."""
+        return self._local.state_size
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the live estimator arrays: the local filter's covariance storage and
+        the frozen submaps' arrays (the pose graph's few hundred nodes are negligible)."""
+        return self._local.state.nbytes + sum(f.nbytes for f in self.frozen)
+
+    @property
+    def map(self) -> list[MapSpline]:
+        """Every submap's splines in its optimised frame (map frame), covariance blocks
+        rotated with them; splines of two submaps lying on one another share a ``surface``."""
+        return mark_surfaces(self._global_splines(), self.config.submaps.point_spacing_m)
+
+    @property
+    def curves(self) -> list[BSplineCurve]:
+        """The map's curves (map frame, m), without covariances; leaves the filter untouched."""
+        curves = []
+        for f in self.frozen:
+            b = self._bases[f.index]
+            curves += [s.curve.transformed(b[2], b[:2]) for s in f.splines]
+        b = self._bases[self.submap_index]
+        return curves + [c.transformed(b[2], b[:2]) for c in self._local.curves]
+
+    # -- the algorithm ------------------------------------------------------------------
+    def step(self, odometry_delta, scan: LaserScan, laser_offset=None, odometry_covariance=None,
+             features=None) -> StepReport:
+        """One scan through the local filter (see :meth:`SplineSLAM.step`); a full submap
+        is then frozen, matched against the old ones, and a new one started at this scan."""
+        report = self._local.step(odometry_delta, scan, laser_offset, odometry_covariance, features)
+        self.step_submap = self.submap_index
+        self.steps += 1
+        if odometry_delta is not None:
+            self._distance += math.hypot(odometry_delta[0], odometry_delta[1])
+        cfg = self.config.submaps
+        if self._local.state_size >= cfg.max_state_size or self._distance >= cfg.max_distance_m:
+            self._freeze()
+            # the new submap starts at this scan: its splines seed the new map
+            self._local.step(None, scan, laser_offset, features=report.features)
+        self._check_memory()
+        return report
+
+    def finish(self) -> None:
+        """Freeze the last submap (its loop closures found) so the map and bases are final;
+        call once, at the end of a run. Further steps start a new submap."""
+        if self._local.steps > self._seed_steps:
+            self._freeze()
+
+    @property
+    def _seed_steps(self) -> int:
+        """Steps of the current submap that only seeded it (the scan that ended the last)."""
+        return 1 if self.frozen else 0
+
+    def _new_local(self) -> SplineSLAM:
+        self._distance = 0.0
+        return SplineSLAM(self.config, initial_pose=np.zeros(3), initial_covariance=np.zeros((3, 3)))
+
+    def _freeze(self) -> None:
+        local, k = self._local, self.submap_index
+        splines = local.map
+        shape = SubmapShape.from_curves([s.curve for s in splines], self.config.submaps.point_spacing_m)
+        frozen = FrozenSubmap(k, splines, shape, local.pose, local.pose_covariance, local.steps)
+        self.frozen.append(frozen)
+        self.graph.add_node(frozen.end_pose, _proper(frozen.end_covariance))
+        self.graph.optimize()
+        self._bases = self.graph.poses()
+        if self._close_loops(k):
+            self.graph.optimize()
+            self._bases = self.graph.poses()
+        self._base_cov = self.graph.covariance(k + 1)
+        self._local = self._new_local()
+        self.stats.submaps = k + 2
+
+    def _close_loops(self, k: int) -> bool:
+        """Match frozen submap ``k`` against the old submaps it may overlap (not its
+        neighbour, tied to it by the odometry constraint); add the verified matches to the
+        graph. True when one was added."""
+        cfg = self.config.submaps
+        query = self.frozen[k].shape
+        if cfg.loop_max_candidates == 0 or k < 2 or query.points.shape[0] == 0:
+            return False
+        centres = np.array([compose(self._bases[f.index], np.r_[f.shape.center, 0.0])[:2]
+                            for f in self.frozen[:k - 1]])
+        radii = np.array([f.shape.radius for f in self.frozen[:k - 1]])
+        here = compose(self._bases[k], np.r_[query.center, 0.0])[:2]
+        gap = np.hypot(*(centres - here).T) - radii - query.radius   # < 0: the areas overlap
+        order = np.argsort(gap, kind="stable")
+        added = False
+        tried = 0
+        for j in order:
+            if tried == cfg.loop_max_candidates or gap[j] > cfg.loop_max_window_m:
+                break
+            guess, cov = self.graph.relative(int(j), k)
+            sigma_xy = math.sqrt(max(cov[0, 0], cov[1, 1]))
+            window_m = min(max(cfg.loop_sigmas * sigma_xy, cfg.loop_min_window_m), cfg.loop_max_window_m)
+            if gap[j] > window_m:     # cannot overlap anywhere in the search window
+                continue
+            tried += 1
+            window_rad = min(max(cfg.loop_sigmas * math.sqrt(cov[2, 2]), cfg.loop_min_window_rad),
+                             cfg.loop_max_window_rad)
+            self.stats.loop_candidates += 1
+            match = match_submaps(self.frozen[j].shape, query, guess, cov, window_m, window_rad, cfg)
+            if not match.ok:
+                self.stats.loop_rejections[match.reason] = self.stats.loop_rejections.get(match.reason, 0) + 1
+                continue
+            loop_id = self.graph.add_loop(int(j), k, match.relative, _proper(match.covariance))
+            self.loops.append(LoopRecord(int(j), k, match.relative, match.covariance,
+                                         match.inlier_fraction, match.overlap_m, loop_id))
+            self.stats.loop_closures += 1
+            added = True
+        return added
+
+    def _check_memory(self) -> None:
+        used = self.nbytes
+        if used > self._max_bytes:
+            raise MemoryBudgetError(
+                f"the estimator's live arrays need {used / 2 ** 20:.0f} MB, beyond max_memory_mb = "
+                f"{self.config.max_memory_mb:g} MB ({len(self.frozen)} frozen submaps, local state "
+                f"{self.state_size}); raise --max-memory or lower submaps.max_state_size", used)
+
+    # -- the second pass ----------------------------------------------------------------
+    def base_of(self, submap: int) -> tuple[np.ndarray, np.ndarray]:
+        """(3,) the optimised base pose of ``submap`` and (3, 3) its marginal covariance."""
+        return self._bases[submap].copy(), self.graph.covariance(submap)
+
+    def local_map(self, submap: int) -> list[MapSpline]:
+        """The splines of ``submap`` in its own frame (the current one's as they are now)."""
+        return self.frozen[submap].splines if submap < len(self.frozen) else self._local.map
+
+    def _global_splines(self) -> list[MapSpline]:
+        out = []
+        for k in range(self.submap_index + 1):
+            splines = self.local_map(k) if k < len(self.frozen) or self._local.steps > self._seed_steps else []
+            b = self._bases[k]
+            out += [transform_spline(s, b, k) for s in splines]
+        return out
+
+    def loop_weights(self) -> np.ndarray:
+        """(loops,) the robust kernel's weight of each accepted loop closure at the solution."""
+        return self.graph.loop_weights() if self.loops else np.empty(0)
+
+
+def _proper(cov: np.ndarray) -> np.ndarray:
+    """A covariance the optimiser can invert: symmetric, with a floor of 1e-6 m / rad σ
+    (a pose the local filter knows exactly, e.g. a submap of one scan)."""
+    cov = 0.5 * (np.asarray(cov, dtype=float) + np.asarray(cov, dtype=float).T)
+    return cov + np.eye(3) * _ANCHOR_SIGMA ** 2
+
+
+def transform_spline(spline: MapSpline, pose: np.ndarray, submap: int = 0) -> MapSpline:
+    """``spline`` (its submap's frame) in the frame where the submap's base is ``pose``
+    (3,): control points moved rigidly, the covariance of [x_0 … x_{n−1}, y_0 … y_{n−1}]
+    rotated with them."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    curve = spline.curve.transformed(pose[2], pose[:2])
+    n = spline.curve.control_points.shape[0]
+    eye = np.eye(n)
+    T = np.block([[c * eye, -s * eye], [s * eye, c * eye]])
+    cov = T @ spline.covariance @ T.T
+    return MapSpline(spline.id, curve, cov, submap=submap, surface=spline.surface)
+
+
+def mark_surfaces(splines: list[MapSpline], spacing_m: float, tolerance_m: float = 0.1,
+                  min_shared: float = 0.5) -> list[MapSpline]:
+    """The splines with ``surface`` set: splines of different submaps that lie on one
+    another (at least ``min_shared`` of the shorter one's points, sampled every
+    ``spacing_m``, within ``tolerance_m`` of the other) are one surface, transitively;
+    a surface's id is its first spline's index. The map keeps both (each carries its own
+    submap's covariance); a reader draws or counts a surface once."""
+    if not splines:
+        return []
+    samples = [_sample(s.curve, spacing_m) for s in splines]
+    owner = np.repeat(np.arange(len(splines)), [p.shape[0] for p in samples])
+    submap = np.array([s.submap for s in splines])[owner]
+    points = np.vstack(samples)
+    tree = cKDTree(points)
+    pairs = tree.query_pairs(tolerance_m, output_type="ndarray")
+    pairs = pairs[submap[pairs[:, 0]] != submap[pairs[:, 1]]]
+    parent = np.arange(len(splines))
+    if pairs.size:
+        # points of spline a near spline b (each point counted once per other spline)
+        both = np.concatenate([np.c_[pairs[:, 0], owner[pairs[:, 1]]], np.c_[pairs[:, 1], owner[pairs[:, 0]]]])
+        point_spline = np.unique(both, axis=0)
+        link, shared = np.unique(np.c_[owner[point_spline[:, 0]], point_spline[:, 1]], axis=0, return_counts=True)
+        counts = np.array([p.shape[0] for p in samples])
+        for (a, b), m in zip(link, shared):
+            if m >= min_shared * min(counts[a], counts[b]):
+                ra, rb = _root(parent, a), _root(parent, b)
+                parent[max(ra, rb)] = min(ra, rb)
+    roots = [_root(parent, i) for i in range(len(splines))]
+    return [replace(s, surface=int(r)) for s, r in zip(splines, roots)]
+
+
+def _root(parent: np.ndarray, i: int) -> int:
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return int(i)
+
+
+def _sample(curve: BSplineCurve, spacing_m: float) -> np.ndarray:
+    """(k, 2) points along ``curve`` about ``spacing_m`` apart (parameter steps: the
+    splines are fitted with chord-length parameters, close to arc length)."""
+    lo, hi = curve.domain
+    k = max(2, int(math.ceil(curve.length() / spacing_m)) + 1)
+    return curve.evaluate(np.linspace(lo, hi, k))
