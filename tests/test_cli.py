@@ -167,6 +167,60 @@ def test_evaluate_saves_json_and_plot_and_keeps_printing(tmp_path):
     assert (tmp_path / "e.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def _nees_files(tmp_path, n=60):
+    """An estimate with covariances and its reference in another frame, as a run writes them."""
+    from bsslam.io.pose_covariance_file import write_pose_covariance_csv
+    from bsslam.io.trajectory_file import write_tum
+    from bsslam.se2 import compose
+    from bsslam.trajectory import Trajectory
+
+    rng = np.random.default_rng(2)
+    t = np.arange(float(n))
+    truth = np.column_stack([np.cos(t / 8), np.sin(t / 8), t / 8])
+    cov = np.tile(np.diag([0.01, 0.04, 0.0004]), (n, 1, 1))
+    cov[0] = 0.0
+    est = Trajectory(t, truth + rng.normal(size=(n, 3)) * [0.1, 0.2, 0.02], cov)
+    write_tum(tmp_path / "est.tum", est)
+    write_pose_covariance_csv(tmp_path / "cov.csv", est)
+    np.savetxt(tmp_path / "ref.txt", np.column_stack([t, compose(np.array([2.0, -1.0, 1.0]), truth)]))
+    return tmp_path / "est.tum", tmp_path / "ref.txt", tmp_path / "cov.csv"
+
+
+def test_evaluate_nees_with_the_reference_sigma_json_and_plot(tmp_path):
+    import math
+
+    from bsslam.eval.evaluate_files import nees_files
+
+    est, ref, cov = _nees_files(tmp_path)
+    out = invoke("evaluate", est, ref, "--covariance", cov, "--reference-sigma", "0.03,0.5",
+                 "--json", tmp_path / "m.json", "--plot", tmp_path / "e.png").output
+    saved = json.loads((tmp_path / "m.json").read_text())
+    expected = nees_files(est, ref, cov, reference_sigma_xy_m=0.03, reference_sigma_phi_rad=math.radians(0.5))
+    assert saved["nees_mean"] == pytest.approx(expected.mean) and saved["nees_median"] == pytest.approx(expected.median)
+    assert saved["nees_fraction_outside_95"] == expected.fraction_outside_95
+    assert saved["nees_count"] == 59 and saved["nees_skipped_singular"] == 1
+    assert "nees_fraction_outside_95" in out and str(saved["nees_mean"])[:6] in out  # the table
+    assert (tmp_path / "e.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # the reference's σ only ever lowers NEES
+    plain = json.loads(invoke("evaluate", est, ref, "--covariance", cov, "--json", "-").output)
+    assert plain["nees_mean"] > saved["nees_mean"] and plain["ate_m"] == saved["ate_m"]
+
+
+def test_evaluate_nees_bad_input(tmp_path):
+    est, ref, cov = _nees_files(tmp_path)
+    lines = cov.read_text().splitlines()
+    lines[5] = lines[5].rsplit(",", 1)[0] + ",inf"
+    cov.write_text("\n".join(lines) + "\n")
+    result = runner.invoke(app, ["evaluate", str(est), str(ref), "--covariance", str(cov)])
+    assert result.exit_code == 2 and str(cov) in result.output and "non-finite" in result.output
+    for bad in ("0.03", "0.03,-1", "a,b", "0.03,nan"):
+        result = runner.invoke(app, ["evaluate", str(est), str(ref), "--covariance", str(cov),
+                                     "--reference-sigma", bad])
+        assert result.exit_code == 2 and "SIGMA_XY_M,SIGMA_HEADING_DEG" in result.output, bad
+    result = runner.invoke(app, ["evaluate", str(est), str(ref), "--reference-sigma", "0.03,0.5"])
+    assert result.exit_code == 2 and "give --covariance" in result.output
+
+
 def test_version_and_verbosity_flags_before_or_after_the_verb():
     assert invoke("--version").output.strip() == f"bsslam {bsslam.__version__}"
     for args in (["-q", "config"], ["config", "-q"], ["config", "--verbose"], ["-v", "config"]):

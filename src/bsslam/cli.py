@@ -350,6 +350,23 @@ def run(
     console.print(f"results in [bold]{run_dir}[/bold]")
 
 
+def _reference_sigma(value: Optional[str]) -> Optional[tuple[float, float]]:
+    """``--reference-sigma SXY,SPHI``: σ of x and y (m) and of the heading (deg), both ≥ 0."""
+    if value is None:
+        return None
+    parts = value.split(",")
+    try:
+        sigma = tuple(float(p) for p in parts)
+    except ValueError:
+        sigma = ()
+    if len(sigma) != 2 or not all(s >= 0 for s in sigma):  # also rejects nan, not inf
+        raise typer.BadParameter(f"expected two numbers ≥ 0, 'SIGMA_XY_M,SIGMA_HEADING_DEG' (e.g. 0.03,0.5), "
+                                 f"got {value!r}")
+    if not all(s < float("inf") for s in sigma):
+        raise typer.BadParameter(f"the reference σ must be finite, got {value!r}")
+    return sigma
+
+
 @app.command()
 def evaluate(
     estimate: Path = typer.Argument(..., help="Estimated trajectory (TUM or 't x y θ')."),
@@ -361,18 +378,33 @@ def evaluate(
     json_file: Optional[Path] = typer.Option(None, "--json", help="Also save the metrics as JSON to this file "
                                              "('-': print JSON instead of the table)."),
     plot: Optional[Path] = typer.Option(None, help="Also draw the aligned trajectories and the position error "
-                                        "over time to this picture (.png, .svg or .pdf)."),
+                                        "over time to this picture (.png, .svg or .pdf); with --covariance "
+                                        "the NEES over time too."),
+    covariance: Optional[Path] = typer.Option(None, help="The estimate's pose covariance CSV (a run's "
+                                              "pose_covariance_online.csv with trajectory_online.tum): report "
+                                              "NEES after the ATE's alignment."),
+    reference_sigma: Optional[str] = typer.Option(None, callback=_reference_sigma, metavar="SXY,SPHI",
+                                                  help="The reference's own σ, x and y in m, heading in deg "
+                                                  "(e.g. 0.03,0.5), added to the estimate's covariance for "
+                                                  "NEES. Default 0,0."),
 ) -> None:
     """ATE, RPE, the relations metric and NEES of a trajectory against a reference."""
+    import math
+
     from bsslam.eval.evaluate_files import evaluate_files, write_evaluation_plot, write_metrics_json
 
+    sigma_xy_m, sigma_phi_deg = reference_sigma or (0.0, 0.0)
+    nees_args = dict(covariance_path=covariance, reference_sigma_xy_m=sigma_xy_m,
+                     reference_sigma_phi_rad=math.radians(sigma_phi_deg))
     try:
+        if reference_sigma is not None and covariance is None:
+            raise ConfigError("--reference-sigma is used by the NEES of --covariance: give --covariance FILE")
         metrics = evaluate_files(estimate, reference, relations_path=relations, offset=offset,
-                                 max_dt=max_dt, exact_reference=exact)
+                                 max_dt=max_dt, exact_reference=exact, **nees_args)
         if json_file is not None and json_file != Path("-"):
             write_metrics_json(json_file, metrics)
         if plot is not None:
-            write_evaluation_plot(estimate, reference, plot, max_dt=max_dt)
+            write_evaluation_plot(estimate, reference, plot, max_dt=max_dt, exact_reference=exact, **nees_args)
     except BsslamError as exc:
         fail(exc)
     if json_file == Path("-"):

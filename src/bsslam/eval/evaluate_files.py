@@ -11,8 +11,10 @@ from typing import Any
 
 import numpy as np
 
+from bsslam.errors import InputError
 from bsslam.eval.association import associate, nearest_stamps
 from bsslam.eval.consistency import nees
+from bsslam.eval.pose_nees import NeesReport, pose_nees, singular_covariances
 from bsslam.eval.relations import relations_error
 from bsslam.eval.trajectory_error import ate, rpe
 from bsslam.io.path_or_file import PathOrFile, open_path_or_file
@@ -47,10 +49,52 @@ def _nees_mean(est: Trajectory, ref: Trajectory, covariance_path: Path, max_dt: 
     return float(np.mean(values)), len(values)
 
 
+def read_matching_covariances(covariance_path: str | os.PathLike, est: Trajectory) -> np.ndarray:
+    """The (N, 3, 3) covariances of a pose covariance CSV written for the trajectory ``est``
+    (one row per pose, the same stamps), checked finite and positive semidefinite.
+
+    Raises:
+        InputError: naming ``covariance_path``: unreadable, a row count or a stamp that
+            differs from the estimate's, or a bad matrix.
+    """
+    name = str(covariance_path)
+    stamps, covariances = read_pose_covariance_csv(covariance_path)
+    if len(stamps) != len(est):
+        raise InputError(f"{len(stamps)} covariance rows for an estimate of {len(est)} poses: "
+                         "not the covariances of this trajectory", name)
+    off = np.nonzero(~(np.abs(stamps - est.stamps) <= _COVARIANCE_STAMP_TOLERANCE_S))[0]
+    if len(off):
+        k = off[0]
+        raise InputError(f"row {k} has stamp {stamps[k]!r} but the estimate's pose {k} has {est.stamps[k]!r}: "
+                         "not the covariances of this trajectory", name)
+    singular_covariances(covariances, name)
+    return covariances
+
+
+def nees_files(est_path: str | os.PathLike, ref_path: str | os.PathLike, covariance_path: str | os.PathLike, *,
+               reference_sigma_xy_m: float = 0.0, reference_sigma_phi_rad: float = 0.0, max_dt: float = 0.05,
+               ref_offset: float = 0.0, exact_reference: bool = False) -> NeesReport:
+    """:func:`~bsslam.eval.pose_nees.pose_nees` of trajectory files and the estimate's
+    covariance CSV (e.g. ``trajectory_online.tum`` with ``pose_covariance_online.csv``);
+    no alignment when ``exact_reference``.
+
+    Raises:
+        InputError: unreadable files, covariances not matching the estimate, or too few
+            matched poses.
+    """
+    est = read_trajectory(est_path)
+    covariances = read_matching_covariances(covariance_path, est)
+    return pose_nees(est, read_trajectory(ref_path), covariances, reference_sigma_xy_m=reference_sigma_xy_m,
+                     reference_sigma_phi_rad=reference_sigma_phi_rad, max_dt=max_dt, offset=ref_offset,
+                     align=not exact_reference)
+
+
 def evaluate_files(est_path: str | os.PathLike, ref_path: str | os.PathLike | None,
                    relations_path: str | os.PathLike | None = None, offset: float = 0.0,
                    max_dt: float = 0.05, *, relations_max_dt: float = 0.001, ref_offset: float = 0.0,
-                   exact_reference: bool = False, rpe_delta: int = 1) -> dict[str, Any]:
+                   exact_reference: bool = False, rpe_delta: int = 1,
+                   covariance_path: str | os.PathLike | None = None, reference_sigma_xy_m: float = 0.0,
+                   reference_sigma_phi_rad: float = 0.0) -> dict[str, Any]:
     """Evaluate a trajectory file (TUM or ``t x y θ``).
 
     Args:
@@ -69,13 +113,20 @@ def evaluate_files(est_path: str | os.PathLike, ref_path: str | os.PathLike | No
             mean NEES of the matched poses is reported; never for approximate references
             such as the GMapping poses, whose own error would count as filter error.
         rpe_delta: RPE compares poses this many matches apart.
+        covariance_path: the estimate's pose covariance CSV: report NEES against the
+            reference (see :func:`nees_files`), whether or not it is exact; it replaces the
+            ``exact_reference`` NEES.
+        reference_sigma_xy_m, reference_sigma_phi_rad: the reference's own σ (m, rad),
+            added to the estimate's covariance for that NEES.
 
     Returns:
         dict with, when a reference is given: ``matched``, ``ate_m``, ``rpe_trans_m`` and
         ``rpe_rot_deg`` (RMSE), ``rpe_trans_mean_m``, ``rpe_rot_mean_deg``; with relations:
         ``relations_trans_mean_m``, ``relations_trans_std_m``, ``relations_rot_mean_deg``,
         ``relations_rot_std_deg``, ``relations_used``, ``relations_total``; with NEES:
-        ``nees_mean`` and ``nees_count``.
+        ``nees_mean`` and ``nees_count``; with ``covariance_path`` also ``nees_median``,
+        ``nees_fraction_outside_95`` (share above the χ²(3) 95 % quantile, 7.81) and
+        ``nees_skipped_singular``.
 
     Raises:
         InputError: unreadable files or too few matched poses.
@@ -89,9 +140,17 @@ def evaluate_files(est_path: str | os.PathLike, ref_path: str | os.PathLike | No
         result.update(matched=matched, ate_m=ate_m, rpe_trans_m=errors.trans_rmse_m,
                       rpe_rot_deg=errors.rot_rmse_deg, rpe_trans_mean_m=errors.trans_mean_m,
                       rpe_rot_mean_deg=errors.rot_mean_deg)
-        covariance_path = Path(est_path).with_name(POSE_COVARIANCE_FILE)
-        if exact_reference and covariance_path.exists():
-            result["nees_mean"], result["nees_count"] = _nees_mean(est, ref, covariance_path, max_dt, ref_offset)
+        beside = Path(est_path).with_name(POSE_COVARIANCE_FILE)
+        if covariance_path is not None:
+            report = pose_nees(est, ref, read_matching_covariances(covariance_path, est),
+                               reference_sigma_xy_m=reference_sigma_xy_m,
+                               reference_sigma_phi_rad=reference_sigma_phi_rad, max_dt=max_dt, offset=ref_offset,
+                               align=not exact_reference)
+            result.update(nees_mean=report.mean, nees_median=report.median,
+                          nees_fraction_outside_95=report.fraction_outside_95, nees_count=len(report.nees),
+                          nees_skipped_singular=report.skipped_singular)
+        elif exact_reference and beside.exists():
+            result["nees_mean"], result["nees_count"] = _nees_mean(est, ref, beside, max_dt, ref_offset)
         elif exact_reference:
             logger.info("no %s next to %s: NEES not computed", POSE_COVARIANCE_FILE, est_path)
     if relations_path is not None:
@@ -109,12 +168,15 @@ def write_metrics_json(target: PathOrFile, metrics: dict[str, Any]) -> None:
 
 
 def write_evaluation_plot(est_path: str | os.PathLike, ref_path: str | os.PathLike,
-                          target: str | os.PathLike, max_dt: float = 0.05, ref_offset: float = 0.0) -> Path:
+                          target: str | os.PathLike, max_dt: float = 0.05, ref_offset: float = 0.0, *,
+                          covariance_path: str | os.PathLike | None = None, reference_sigma_xy_m: float = 0.0,
+                          reference_sigma_phi_rad: float = 0.0, exact_reference: bool = False) -> Path:
     """Draw the estimate aligned onto the reference as the ATE aligns it, and the position
-    error of the matched poses over time, to ``target`` (PNG, SVG or PDF by its suffix).
+    error of the matched poses over time, to ``target`` (PNG, SVG or PDF by its suffix);
+    with ``covariance_path`` also the NEES of :func:`nees_files` over time.
 
     Raises:
-        InputError: unreadable files or too few matched poses.
+        InputError: unreadable files, too few matched poses, or bad covariances.
     """
     from bsslam.viz.evaluation_plots import save_evaluation_figure
 
@@ -122,5 +184,11 @@ def write_evaluation_plot(est_path: str | os.PathLike, ref_path: str | os.PathLi
     rmse, _, aligned = ate(est, ref, max_dt, ref_offset)
     est_idx, ref_idx = associate(aligned, ref, max_dt, ref_offset)
     error = np.linalg.norm(aligned.poses[est_idx, :2] - ref.poses[ref_idx, :2], axis=1)
+    report = None
+    if covariance_path is not None:
+        report = pose_nees(est, ref, read_matching_covariances(covariance_path, est),
+                           reference_sigma_xy_m=reference_sigma_xy_m, reference_sigma_phi_rad=reference_sigma_phi_rad,
+                           max_dt=max_dt, offset=ref_offset, align=not exact_reference)
     return save_evaluation_figure(target, aligned.poses, ref.poses, aligned.stamps[est_idx], error,
-                                  title=f"{Path(est_path).name} against {Path(ref_path).name}: ATE {rmse:.3f} m")
+                                  title=f"{Path(est_path).name} against {Path(ref_path).name}: ATE {rmse:.3f} m",
+                                  nees=report)

@@ -6,7 +6,8 @@ so they need no display and the package never switches matplotlib's backend: imp
 bsslam leaves a notebook's inline plots alone.
 """
 
-from bsslam.viz.consistency_plots import plot_errors_with_bounds, plot_nees, plot_sigma_over_updates
+from bsslam.viz.consistency_plots import (plot_errors_with_bounds, plot_nees, plot_nees_over_time,
+                                          plot_sigma_over_updates)
 from bsslam.viz.figures import new_figure, save_figure
 from bsslam.viz.map_figure import save_map_figure
 from bsslam.viz.map_plots import (
@@ -25,6 +26,7 @@ __all__ = [
     "new_figure",
     "plot_errors_with_bounds",
     "plot_nees",
+    "plot_nees_over_time",
     "plot_points",
     "plot_pose_ellipses",
     "plot_sigma_over_updates",

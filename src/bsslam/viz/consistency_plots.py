@@ -1,5 +1,6 @@
-"""Filter consistency plots (paper Figs. 10–12): NEES against its χ² band, pose errors
-against their ±2σ bounds, and heading σ over repeated updates.
+"""Filter consistency plots (paper Figs. 10–12): NEES against its χ² band (averaged over
+runs, or one run's per-pose NEES over time), pose errors against their ±2σ bounds, and
+heading σ over repeated updates.
 
 Every function takes the axes first, draws, and returns the axes.
 """
@@ -31,6 +32,32 @@ def plot_nees(ax: Axes, steps: np.ndarray, mean_nees: np.ndarray, lower: float |
     ax.set_ylabel("NEES")
     if title:
         ax.set_title(title)
+    ax.legend(loc="best", fontsize="small")
+    return ax
+
+
+def plot_nees_over_time(ax: Axes, stamps: np.ndarray, nees: np.ndarray, band: tuple[float, float],
+                        upper_95: float, t0: float | None = None, title: str = "") -> Axes:
+    """Per-pose NEES (N,) against time (s since ``t0``, default the first of ``stamps`` (N,))
+    on a log scale — a filter's NEES spans decades — with the two-sided band
+    (lower, upper) shaded and the one-sided 95 % quantile ``upper_95`` drawn."""
+    stamps = np.asarray(stamps, dtype=float)
+    values = np.asarray(nees, dtype=float)
+    if values.shape != stamps.shape:
+        raise InputError(f"nees {values.shape} and stamps {stamps.shape} differ in shape")
+    if t0 is None:
+        t0 = float(stamps[0]) if stamps.size else 0.0
+    t = stamps - t0
+    ax.axhspan(band[0], band[1], color="tab:green", alpha=0.2,
+               label=f"χ²(3) 2.5–97.5 % [{band[0]:.3g}, {band[1]:.3g}]")
+    ax.axhline(upper_95, color="tab:red", linestyle="--", linewidth=1.0, label=f"χ²(3) 95 % = {upper_95:.3g}")
+    ax.plot(t, values, color="tab:blue", linewidth=0.8, marker=".", markersize=2, label="NEES")
+    ax.set_yscale("log")
+    ax.set_xlabel("time since the first pose [s]")
+    ax.set_ylabel("NEES")
+    ax.grid(True, which="major", alpha=0.3)
+    if title:
+        ax.set_title(title, fontsize="medium")
     ax.legend(loc="best", fontsize="small")
     return ax
 
