@@ -152,6 +152,21 @@ def test_a_match_carried_by_one_curve_is_rejected():
     assert dist < 0.05 and turn < math.radians(1.0)           # the alignment itself was right
 
 
+def test_all_headings_on_a_near_symmetric_building_never_match_wrongly(overlapping):
+    """±π: the building turned round (x → 24 − x) lines up more wall than the truth (its
+    outer walls and a partition); only the inner walls disagree. Found correctly or
+    rejected, never accepted wrong."""
+    reference, query = overlapping
+    for offset in ([1.2, -0.9, math.radians(15.0)], [2.5, -2.5, 2.5]):
+        guess = compose(TRUE, np.array(offset))
+        match = match_submaps(reference, query, guess, GUESS_COV, 5.0, math.pi, CONFIG)
+        if match.ok:
+            dist, turn = _error(match, TRUE)
+            assert dist < 0.03 and turn < math.radians(1.0), match
+        else:
+            assert match.reason in ("incompatible", "poor_inlier_fraction", "ambiguous"), match
+
+
 def test_featureless_corridor_is_rejected():
     corridor = [_polyline((0, 0), (40, 0)), _polyline((0, 2.2), (40, 2.2))]
     ref_frame, query_frame = np.array([0.0, 1.0, 0.0]), np.array([12.0, 1.2, 0.05])

@@ -22,8 +22,9 @@ fails):
   structure). Only the window is searched: a copy of the structure outside it is not seen,
   so the window must cover the relative pose's real uncertainty;
 - ``incompatible``: the spline associations are not jointly compatible: fewer than two of
-  the query's overlapping curves, or fewer than half of them, agree with the alignment on
-  their own (a match carried by one wall).
+  the query's overlapping curves, or fewer than two thirds of them, agree with the
+  alignment on their own (a match carried by one wall; a near-symmetric building matched
+  turned round, where the outer walls agree and the inner ones do not).
 """
 
 from __future__ import annotations
@@ -47,6 +48,8 @@ REJECT_REASONS = ("too_few_points", "too_little_overlap", "poor_inlier_fraction"
 #: A query curve takes part in the joint-compatibility vote when this much of it (m)
 #: overlaps the reference: shorter pieces are too short to agree or disagree.
 MIN_CURVE_OVERLAP_M = 1.0
+#: … and at least this fraction of the voting curves must agree with the alignment.
+MIN_AGREEING_FRACTION = 2.0 / 3.0
 #: Radius of curvature (m) below which a sampled point is not used as a line in the
 #: point-to-line refinement (the refinement's gate is ~0.15–0.3 m).
 MIN_LINE_RADIUS_M = 1.0
@@ -131,7 +134,9 @@ class LoopMatch:
             the refinement's information alone (not the guess), × ``loop_covariance_inflation``.
         inlier_fraction: inliers / overlapping query points, in [0, 1].
         overlap_m: length of matched wall (inliers × spacing, m).
-        ambiguity: the best distinct alternative's correlative score / the best's, in [0, 1].
+        ambiguity: the best distinct alternative's correlative score / the best's (0 when
+            the window holds no distinct pose; above 1 only when the tie-break towards the
+            guess chose the lower of two near-equal peaks).
         information_ratio: smallest / largest eigenvalue of the scaled information.
         curves_overlapping: query curves with at least :data:`MIN_CURVE_OVERLAP_M` of overlap.
         curves_agreeing: of which those that agree with the alignment on their own.
@@ -172,8 +177,12 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
     reference frame), refine, and verify (see the module docstring).
 
     Args:
-        guess_covariance: (3, 3) covariance of the guess: the refinement's weak prior
-            (it decides nothing the walls fix); not part of the returned covariance.
+        guess_covariance: (3, 3) positive-definite covariance of the guess: the
+            refinement's weak prior (it decides nothing the walls fix); not part of the
+            returned covariance.
+        window_m, window_rad: the search's half-widths (m, rad); at most the front end's
+            ``MAX_SEARCH_WINDOW_M`` (5 m); a rotation window of π or more searches all
+            headings.
 
     Returns:
         :class:`LoopMatch`; only ``ok`` matches are loop closures.
@@ -222,9 +231,16 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
     # Overlap and inliers over all query points (not only those matched), by the distance
     # to the nearest reference point.
     moved = transform_points(pose, query.points)
-    dist, _ = cKDTree(reference.points).query(moved, distance_upper_bound=config.loop_overlap_distance_m)
-    overlapping = dist <= config.loop_overlap_distance_m
-    inlier = dist <= config.loop_inlier_distance_m
+    dist, near = cKDTree(reference.points).query(moved, distance_upper_bound=config.loop_overlap_distance_m)
+    close = dist <= config.loop_overlap_distance_m
+    near = np.where(close, near, 0)
+    # A point beside a reference curve overlaps it; one beyond a curve's end, along its
+    # line, is a wall the reference did not see that far (occlusion, range), which neither
+    # confirms nor contradicts the alignment.
+    offset = moved - reference.points[near]
+    along = np.abs(offset[:, 0] * reference.normals[near, 1] - offset[:, 1] * reference.normals[near, 0])
+    overlapping = close & (along <= max(reference.spacing_m, config.loop_inlier_distance_m))
+    inlier = overlapping & (dist <= config.loop_inlier_distance_m)
     n_over, n_in = int(np.count_nonzero(overlapping)), int(np.count_nonzero(inlier))
     fraction = n_in / n_over if n_over else 0.0
     overlap_m = n_in * query.spacing_m
@@ -251,6 +267,6 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
         return reject("degenerate", pose, **result)
     if ambiguity > config.loop_max_ambiguity:
         return reject("ambiguous", pose, **result)
-    if n_agree < 2 or 2 * n_agree < n_voting:
+    if n_agree < 2 or n_agree < MIN_AGREEING_FRACTION * n_voting:
         return reject("incompatible", pose, **result)
     return LoopMatch(True, "ok", pose, covariance, **result)
