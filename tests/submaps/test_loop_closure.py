@@ -15,6 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bsslam.config import SubmapConfig
+from bsslam.errors import ConfigError
 from bsslam.se2 import between, compose, inverse
 from bsslam.spline import BSplineCurve, fit_curve
 from bsslam.submaps.loop_closure import LoopMatch, SubmapShape, match_submaps
@@ -214,3 +215,12 @@ def test_random_offsets_within_the_window_are_recovered(overlapping, dx, dy, dph
     assert match.ok, match
     dist, turn = _error(match, truth)
     assert dist < 0.03 and turn < math.radians(1.0)
+
+
+@pytest.mark.parametrize("field, value", [("loop_max_window_m", 6.0), ("loop_inlier_distance_m", 2.0),
+                                          ("loop_search_points", 10), ("loop_min_information_ratio", 1.5),
+                                          ("loop_distinct_m", 0.0)])
+def test_config_bounds(field, value):
+    """The window is the correlative search's (≤ 5 m); the inlier gate within the overlap one."""
+    with pytest.raises(ConfigError):
+        SubmapConfig(**{field: value})
