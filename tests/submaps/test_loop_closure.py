@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy.stats import chi2
 
 from bsslam.config import SubmapConfig
 from bsslam.errors import ConfigError
@@ -50,12 +51,16 @@ BUILDING = [
 ]
 
 
-def _submap(walls: list[np.ndarray], x_lo: float, x_hi: float, frame: np.ndarray) -> list[BSplineCurve]:
+def _submap(walls: list[np.ndarray], x_lo: float, x_hi: float, frame: np.ndarray,
+            rng: np.random.Generator | None = None, noise_m: float = 0.0) -> list[BSplineCurve]:
     """Curves of the walls' pieces with x in [x_lo, x_hi] (world), expressed in the frame
-    whose world pose is ``frame`` (3,)."""
+    whose world pose is ``frame`` (3,); fitted to points with Gaussian noise of
+    ``noise_m`` (m) when given (each submap its own noise, as two visits see a wall)."""
     inv = inverse(np.asarray(frame, dtype=float))
     curves = []
     for pts in walls:
+        if noise_m:
+            pts = pts + rng.normal(0.0, noise_m, pts.shape)
         keep = (pts[:, 0] >= x_lo) & (pts[:, 0] <= x_hi)
         # Split at gaps so that each contiguous run is one curve.
         breaks = np.flatnonzero(np.diff(keep.astype(int)) != 0) + 1
@@ -66,8 +71,8 @@ def _submap(walls: list[np.ndarray], x_lo: float, x_hi: float, frame: np.ndarray
     return curves
 
 
-def _shape(walls, x_lo, x_hi, frame) -> SubmapShape:
-    return SubmapShape.from_curves(_submap(walls, x_lo, x_hi, frame), SPACING)
+def _shape(walls, x_lo, x_hi, frame, rng=None, noise_m=0.0) -> SubmapShape:
+    return SubmapShape.from_curves(_submap(walls, x_lo, x_hi, frame, rng, noise_m), SPACING)
 
 
 REF_FRAME = np.array([2.0, 3.0, 0.3])
@@ -117,6 +122,23 @@ def test_recovers_the_true_relative_pose(overlapping):
     assert float(e @ np.linalg.solve(match.covariance, e)) < 3.0 ** 2 * 3
     assert match.inlier_fraction >= CONFIG.loop_min_inlier_fraction and match.overlap_m >= CONFIG.loop_min_overlap_m
     assert match.curves_agreeing >= 2 and match.ambiguity <= CONFIG.loop_max_ambiguity
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_noisy_submaps_recover_the_pose_within_the_covariance(seed):
+    """Each submap's splines fitted to its own noisy wall points (2 cm): the curves differ
+    by their fit errors, as two visits' maps do; the error stays within the covariance."""
+    rng = np.random.default_rng(seed)
+    reference = _shape(BUILDING, -1, 15, REF_FRAME, rng, 0.02)
+    query = _shape(BUILDING, 7, 25, QUERY_FRAME, rng, 0.02)
+    guess = compose(TRUE, np.array([-1.0, 1.1, math.radians(-15.0)]))
+    match = match_submaps(reference, query, guess, GUESS_COV, 3.0, math.radians(30.0), CONFIG)
+    assert match.ok, match
+    dist, turn = _error(match, TRUE)
+    assert dist < 0.03 and turn < math.radians(0.5)
+    e = match.relative - TRUE
+    e[2] = wrap_angle(e[2])
+    assert float(e @ np.linalg.solve(match.covariance, e)) < chi2.ppf(0.999, 3)
 
 
 def test_timing_of_one_wide_match(overlapping):
