@@ -3,6 +3,7 @@ consistency, degenerate and empty input."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -342,3 +343,23 @@ def test_scan_points_drops_the_beams_valid_beams_drops():
             a, r = scan.angles[mask], scan.ranges[mask]
             expected = np.column_stack((o[0] + r * np.cos(o[2] + a), o[1] + r * np.sin(o[2] + a)))
             np.testing.assert_array_equal(scan_points(scan, offset, cfg), expected)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_alternative_is_the_correlative_search_without_the_best(seed):
+    """With nothing excluded and no tie-break, the runner-up search is the correlative
+    search itself; with the best excluded, it returns a distinct pose whose score is the
+    fine field's at that pose."""
+    rng = np.random.default_rng(seed)
+    ref, cur, true = _room_pair(rng)
+    cfg = dataclasses.replace(CFG, search_prior_weight=0.0)
+    reference = ReferenceMap(ref, cfg)
+    guess = true + perturbation(rng, 0.3, 20.0)
+    best, score = reference.correlative(cur, guess)
+    same, same_score = reference.alternative(cur, guess, best, -1.0, -1.0)
+    assert np.array_equal(same, best) and same_score == score
+    alt, alt_score = reference.alternative(cur, guess, best, 0.3, math.radians(5.0))
+    turn = abs(math.remainder(alt[2] - best[2], 2 * math.pi))
+    assert math.hypot(alt[0] - best[0], alt[1] - best[1]) > 0.3 or turn > math.radians(5.0)
+    oracle = reference.fine.score_poses(cur, alt[None, :], np.zeros((1, 2), dtype=np.int64))[0, 0]
+    assert alt_score == pytest.approx(float(oracle), abs=1e-6) and alt_score <= score

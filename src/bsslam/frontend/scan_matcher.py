@@ -485,6 +485,56 @@ class ReferenceMap:
         best[:2] += grid.fine_offsets_m[t]
         return best, float(fine[p, t])
 
+    def alternative(self, points: np.ndarray, guess: np.ndarray, best: np.ndarray, sep_m: float,
+                    sep_rad: float) -> tuple[np.ndarray, float]:
+        """The runner-up of :meth:`correlative`: the best pose (3,) of the same two-level
+        search around ``guess`` among the poses *distinct* from ``best`` (more than
+        ``sep_m`` in translation or ``sep_rad`` in heading away), and its fine mean
+        likelihood (0 and ``guess`` when the window holds no such pose).
+
+        Scores are raw (without the tie-break towards the guess) so that the ratio to the
+        best's score measures ambiguity (repetitive structure), not distance from the guess.
+        """
+        cfg = self.config
+        guess = np.asarray(guess, dtype=float)
+        best = np.asarray(best, dtype=float)
+        grid = _search_grid(cfg, self.coarse.resolution, self.fine.resolution)
+        poses = np.empty((grid.rot_steps.shape[0], 3))
+        poses[:, 0], poses[:, 1] = guess[0], guess[1]
+        poses[:, 2] = guess[2] + grid.rot_steps
+        score = self.coarse.score_grid(points, poses, grid.coarse_half, grid.coarse_step).astype(float)
+
+        def near(x: np.ndarray, y: np.ndarray, phi: np.ndarray) -> np.ndarray:
+            turn = np.abs((phi - best[2] + np.pi) % (2 * np.pi) - np.pi)
+            return (np.hypot(x - best[0], y - best[1]) <= sep_m) & (turn <= sep_rad)
+
+        # A coarse pose is knocked out when it is near ``best`` (its fine neighbourhood of
+        # ±1 coarse step is masked again below).
+        score[near(guess[0] + grid.offsets_m[None, :, 0], guess[1] + grid.offsets_m[None, :, 1],
+                   poses[:, 2:3])] = -np.inf
+        # _distinct_maxima stops at the first −inf: every candidate is distinct from best.
+        candidates = _distinct_maxima(score, cfg.coarse_candidates, rot_sep=2, off=grid.offsets,
+                                      off_sep=2 * grid.coarse_step, near_off=grid.near_offsets, overwrite=True)
+        if not candidates:
+            return guess.copy(), 0.0
+        cand_rot, cand_off = (np.array(c) for c in zip(*candidates))
+        shift = grid.offsets_m[cand_off]
+        n_fine = grid.fine_rot.shape[0]
+        fine_poses = np.empty((len(candidates), n_fine, 3))
+        fine_poses[:, :, 0] = (guess[0] + shift[:, 0])[:, None]
+        fine_poses[:, :, 1] = (guess[1] + shift[:, 1])[:, None]
+        fine_poses[:, :, 2] = poses[cand_rot, 2][:, None] + grid.fine_rot
+        fine_poses = fine_poses.reshape(-1, 3)
+        fine = self.fine.score_grid(points, fine_poses, grid.fine_half, 1).astype(float)
+        fine[near(fine_poses[:, 0:1] + grid.fine_offsets_m[None, :, 0],
+                  fine_poses[:, 1:2] + grid.fine_offsets_m[None, :, 1], fine_poses[:, 2:3])] = -np.inf
+        p, t = divmod(int(np.argmax(fine)), fine.shape[1])
+        if not np.isfinite(fine[p, t]):
+            return guess.copy(), 0.0
+        alt = fine_poses[p].copy()
+        alt[:2] += grid.fine_offsets_m[t]
+        return alt, float(fine[p, t])
+
     # -- refinement ------------------------------------------------------------------------
 
     def refine(self, points: np.ndarray, start: np.ndarray, prior_mean: np.ndarray,
