@@ -1,0 +1,294 @@
+"""The global layer of the submap backend: a pose graph over the submaps' base poses,
+solved incrementally by GTSAM's iSAM2.
+
+- **Nodes** are the base poses (x m, y m, φ rad) of the submaps in the map frame. Node 0
+  carries a prior that defines the map frame (by default a tiny one: the first submap
+  *is* the map frame).
+- **Odometry factors** tie consecutive submaps: the base pose of submap i seen from
+  submap i−1, as the local filter estimated it when submap i−1 was frozen. They come from
+  the filter itself, so they are trusted: a plain Gaussian noise model.
+- **Loop-closure factors** tie a submap to an old one it was matched against. Matching
+  can be fooled (repetitive corridors, symmetric rooms), so a loop factor carries a
+  robust noise model: a Cauchy kernel of width k (in whitened units, σ). Why Cauchy: its
+  weight 1 / (1 + (d/k)²) at a whitened residual d is ½ at d = k, and its influence
+  (weight × d) peaks at d = k and then decays as k²/d, so a false loop tens of σ off
+  pulls the graph with a small fraction of the force of a true loop. Huber's influence
+  stays at k however wrong the loop is (every false loop keeps pulling); a hard gate
+  (truncated loss) drops a true loop whenever drift makes it look large. Cauchy's
+  weight is smooth and never exactly zero, so a true loop that looks large at first
+  regains its weight as the graph moves towards it, and Gauss–Newton stays well behaved.
+
+Covariances at the interface are bsslam's: covariances of pose *coordinates*
+(x, y, φ) in the parent frame. GTSAM's are of its right tangent perturbation
+pose·Exp(ξ), ξ = (vx, vy, ω) in the pose's own frame. To first order the two differ by
+the rotation of the translation part, ``Σ_bsslam = B Σ_gtsam Bᵀ`` with
+``B = blockdiag(R(θ), 1)`` and θ the heading of the pose the covariance belongs to;
+the conversion happens here and nowhere else.
+
+iSAM2 keeps the factorisation of the graph and updates only the part of its Bayes tree
+that new factors touch, so an odometry update costs roughly a constant; a loop closure
+re-eliminates the loop's span and is followed by a few extra iterations so that the
+relinearisation (and the robust weights, which are recomputed at relinearisation)
+converges.
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+#: Default σ² of node 0's prior: the map frame is defined by node 0, held (almost) fixed.
+_ANCHOR_VARIANCE = 1e-9
+
+
+def _frame_rotation(theta: float) -> np.ndarray:
+    """blockdiag(R(θ), 1) (3, 3): maps a tangent perturbation of a pose with heading θ
+    to the first-order change of its coordinates."""
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _to_tangent(covariance: np.ndarray, theta: float) -> np.ndarray:
+    """bsslam coordinate covariance (3, 3) of a pose with heading θ → GTSAM tangent covariance."""
+    B = _frame_rotation(theta)
+    cov = B.T @ covariance @ B
+    return 0.5 * (cov + cov.T)
+
+
+def _from_tangent(covariance: np.ndarray, theta: float) -> np.ndarray:
+    """GTSAM tangent covariance (3, 3) of a pose with heading θ → bsslam coordinate covariance."""
+    B = _frame_rotation(theta)
+    cov = B @ covariance @ B.T
+    return 0.5 * (cov + cov.T)
+
+
+def _check_pose(pose, name: str) -> np.ndarray:
+    pose = np.asarray(pose, dtype=float)
+    if pose.shape != (3,) or not np.all(np.isfinite(pose)):
+        raise ValueError(f"{name} must be a finite (3,) pose (x m, y m, φ rad), got {pose!r}")
+    return pose
+
+
+def _check_covariance(covariance, name: str) -> np.ndarray:
+    covariance = np.asarray(covariance, dtype=float)
+    if covariance.shape != (3, 3) or not np.all(np.isfinite(covariance)):
+        raise ValueError(f"{name} must be a finite (3, 3) covariance, got shape {covariance.shape}")
+    if not np.allclose(covariance, covariance.T, rtol=1e-9, atol=1e-15):
+        raise ValueError(f"{name} must be symmetric")
+    try:
+        np.linalg.cholesky(covariance)
+    except np.linalg.LinAlgError:
+        raise ValueError(f"{name} must be positive definite") from None
+    return covariance
+
+
+class PoseGraph:
+    """A pose graph over submap base poses (node i ↔ GTSAM key i), solved by iSAM2.
+
+    Factors and initial estimates are queued by :meth:`add_node` and :meth:`add_loop`
+    and go into iSAM2 at :meth:`optimize`. Poses can be read at any time (a queued node
+    reads its initial estimate); marginal covariances and loop weights need the nodes
+    involved to have been optimised.
+
+    Args:
+        first_pose: node 0's pose (3,) (x m, y m, φ rad) in the map frame.
+        first_covariance: covariance (3, 3) of node 0's prior in bsslam convention
+            (coordinates), or None for a tiny one (1e-9 on the diagonal): node 0 defines
+            the map frame.
+        robust_kernel_width: width k of the Cauchy kernel on loop factors, in whitened
+            units (σ); a loop factor k σ from the graph's consensus gets weight ½.
+        relinearize_threshold: iSAM2 relinearises a node whose pending update exceeds
+            this (m / rad, per tangent component). It bounds how far the solution is from
+            the exact optimum: roughly its square for Gaussian factors, but about the
+            threshold itself (times a factor below 1) once a robust kernel is active, as
+            the kernel's weights are only refreshed where the graph is relinearised.
+        max_iterations: at most this many extra iSAM2 iterations after a loop closure.
+    """
+
+    def __init__(self, first_pose, first_covariance=None, *, robust_kernel_width: float = 3.0,
+                 relinearize_threshold: float = 1e-4, max_iterations: int = 20):
+        first_pose = _check_pose(first_pose, "first_pose")
+        if first_covariance is None:
+            first_covariance = _ANCHOR_VARIANCE * np.eye(3)
+        first_covariance = _check_covariance(first_covariance, "first_covariance")
+        if not robust_kernel_width > 0:
+            raise ValueError(f"robust_kernel_width must be > 0, got {robust_kernel_width}")
+        if not relinearize_threshold > 0:
+            raise ValueError(f"relinearize_threshold must be > 0, got {relinearize_threshold}")
+        if not (isinstance(max_iterations, int) and max_iterations >= 0):
+            raise ValueError(f"max_iterations must be an integer ≥ 0, got {max_iterations!r}")
+        self.robust_kernel_width = float(robust_kernel_width)
+        self._max_iterations = max_iterations
+
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(float(relinearize_threshold))
+        params.relinearizeSkip = 1  # check every update: loop closures must converge promptly
+        self._isam = gtsam.ISAM2(params)
+        self._kernel = gtsam.noiseModel.mEstimator.Cauchy.Create(self.robust_kernel_width)
+
+        # Pending input for the next optimize().
+        self._new_factors = gtsam.NonlinearFactorGraph()
+        self._new_values = gtsam.Values()
+        self._loop_pending = False
+        # Current estimate of every node (optimised, or initial for queued ones): the
+        # gtsam Values for factor errors, the numpy buffer for cheap reads.
+        self._values = gtsam.Values()
+        self._poses = np.empty((16, 3))
+        self._size = 0
+        self._optimized_size = 0
+        # Loop factors, their Gaussian (un-robust) noise models, and their node pairs.
+        self._loop_factors: list[gtsam.BetweenFactorPose2] = []
+        self._loop_gaussians: list[gtsam.noiseModel.Gaussian] = []
+        self._loop_pairs: list[tuple[int, int]] = []
+
+        prior = gtsam.noiseModel.Gaussian.Covariance(_to_tangent(first_covariance, first_pose[2]))
+        self._new_factors.add(gtsam.PriorFactorPose2(0, gtsam.Pose2(*first_pose), prior))
+        self._append_node(first_pose)
+
+    # -- building ------------------------------------------------------------------------
+
+    def _append_node(self, pose: np.ndarray) -> int:
+        i = self._size
+        if i == len(self._poses):  # amortised growth: doubling
+            self._poses = np.concatenate([self._poses, np.empty_like(self._poses)])
+        self._poses[i] = pose
+        p = gtsam.Pose2(*pose)
+        self._new_values.insert(i, p)
+        self._values.insert(i, p)
+        self._size += 1
+        return i
+
+    def _check_node(self, i, name: str) -> int:
+        if not isinstance(i, (int, np.integer)) or not 0 <= i < self._size:
+            raise ValueError(f"{name} must be a node index in [0, {self._size}), got {i!r}")
+        return int(i)
+
+    def add_node(self, relative, covariance) -> int:
+        """Add node i = (node i−1) ⊕ ``relative`` with a Gaussian odometry factor from
+        node i−1 and return i.
+
+        Args:
+            relative: (3,) pose of the new node in the previous node's frame (m, m, rad).
+            covariance: (3, 3) covariance of ``relative`` in bsslam convention.
+        """
+        relative = _check_pose(relative, "relative")
+        covariance = _check_covariance(covariance, "covariance")
+        previous = self._size - 1
+        z = gtsam.Pose2(*relative)
+        noise = gtsam.noiseModel.Gaussian.Covariance(_to_tangent(covariance, relative[2]))
+        i = self._size
+        self._new_factors.add(gtsam.BetweenFactorPose2(previous, i, z, noise))
+        guess = self._values.atPose2(previous).compose(z)
+        return self._append_node(np.array([guess.x(), guess.y(), guess.theta()]))
+
+    def add_loop(self, i: int, j: int, relative, covariance) -> int:
+        """Add a loop-closure factor between nodes i and j (robust: Cauchy kernel) and
+        return its loop id (0, 1, … in order of addition).
+
+        Args:
+            i, j: distinct node indices (either may be queued, not yet optimised).
+            relative: (3,) measured pose of node j in node i's frame, i.e. the measured
+                ``se2.between(pose_i, pose_j)``.
+            covariance: (3, 3) covariance of ``relative`` in bsslam convention.
+        """
+        i, j = self._check_node(i, "i"), self._check_node(j, "j")
+        if i == j:
+            raise ValueError("a loop closure needs two distinct nodes")
+        relative = _check_pose(relative, "relative")
+        covariance = _check_covariance(covariance, "covariance")
+        gaussian = gtsam.noiseModel.Gaussian.Covariance(_to_tangent(covariance, relative[2]))
+        robust = gtsam.noiseModel.Robust.Create(self._kernel, gaussian)
+        factor = gtsam.BetweenFactorPose2(i, j, gtsam.Pose2(*relative), robust)
+        self._new_factors.add(factor)
+        self._loop_factors.append(factor)
+        self._loop_gaussians.append(gaussian)
+        self._loop_pairs.append((i, j))
+        self._loop_pending = True
+        return len(self._loop_factors) - 1
+
+    # -- solving -------------------------------------------------------------------------
+
+    def optimize(self) -> None:
+        """Put the factors and nodes added since the last call into iSAM2 and update the
+        estimate. After a loop closure, iterate until no node needs relinearising (at most
+        ``max_iterations`` extra iterations)."""
+        if self._new_factors.size() == 0 and self._new_values.size() == 0:
+            return
+        self._isam.update(self._new_factors, self._new_values)
+        if self._loop_pending:
+            for _ in range(self._max_iterations):
+                result = self._isam.update()
+                if result.getVariablesRelinearized() == 0:
+                    break
+        self._new_factors = gtsam.NonlinearFactorGraph()
+        self._new_values = gtsam.Values()
+        self._loop_pending = False
+        # calculateBestEstimate back-substitutes the whole tree (no wildfire cut-off):
+        # exact for the current linearisation, O(n), cheap at a few hundred nodes.
+        self._values = self._isam.calculateBestEstimate()
+        self._poses[:self._size] = gtsam.utilities.extractPose2(self._values)
+        self._optimized_size = self._size
+
+    # -- reading -------------------------------------------------------------------------
+
+    @property
+    def size(self) -> int:
+        """Number of nodes (queued ones included)."""
+        return self._size
+
+    @property
+    def loop_count(self) -> int:
+        """Number of loop factors added."""
+        return len(self._loop_factors)
+
+    @property
+    def loops(self) -> list[tuple[int, int]]:
+        """Node pairs (i, j) of the loop factors, indexed by loop id."""
+        return list(self._loop_pairs)
+
+    def pose(self, i: int) -> np.ndarray:
+        """Current estimate (3,) of node i (x m, y m, φ rad)."""
+        return self._poses[self._check_node(i, "i")].copy()
+
+    def poses(self) -> np.ndarray:
+        """Current estimates (n, 3) of all nodes."""
+        return self._poses[:self._size].copy()
+
+    def _check_optimized(self, i: int, name: str) -> int:
+        i = self._check_node(i, name)
+        if i >= self._optimized_size:
+            raise RuntimeError(f"node {i} is not in the solver yet: call optimize() first")
+        return i
+
+    def covariance(self, i: int) -> np.ndarray:
+        """Marginal covariance (3, 3) of node i's coordinates in the map frame (bsslam
+        convention), at the current linearisation point."""
+        i = self._check_optimized(i, "i")
+        return _from_tangent(self._isam.marginalCovariance(i), self._poses[i, 2])
+
+    def relative(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """``se2.between(pose_i, pose_j)`` (3,) and its covariance (3, 3) in bsslam
+        convention, from the joint marginal of nodes i and j (their correlation matters:
+        two nodes far from node 0 can be well known relative to each other)."""
+        i, j = self._check_optimized(i, "i"), self._check_optimized(j, "j")
+        pi, pj = self._values.atPose2(i), self._values.atPose2(j)
+        r = pi.between(pj)
+        rel = np.array([r.x(), r.y(), r.theta()])
+        if i == j:
+            return rel, np.zeros((3, 3))
+        joint = self._isam.jointMarginalCovariance([i, j])
+        S = np.block([[joint.at(i, i), joint.at(i, j)], [joint.at(j, i), joint.at(j, j)]])
+        # Right perturbations: (pi·Exp(a))⁻¹ (pj·Exp(b)) ≈ r·Exp(b − Ad(r⁻¹) a).
+        H = np.hstack([-r.inverse().AdjointMap(), np.eye(3)])
+        return rel, _from_tangent(H @ S @ H.T, rel[2])
+
+    def loop_errors(self) -> np.ndarray:
+        """Whitened residual norm (loops,) of each loop factor at the current estimate,
+        under its Gaussian model (σ units, before the robust kernel)."""
+        return np.array([np.linalg.norm(g.whiten(f.unwhitenedError(self._values)))
+                         for f, g in zip(self._loop_factors, self._loop_gaussians)], dtype=float)
+
+    def loop_weights(self) -> np.ndarray:
+        """Cauchy kernel weight (loops,) of each loop factor at the current estimate:
+        1 for a loop that agrees with the graph, → 0 for one the kernel rejects."""
+        return np.array([self._kernel.weight(e) for e in self.loop_errors()], dtype=float)
