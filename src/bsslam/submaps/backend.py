@@ -132,6 +132,7 @@ class SubmapSLAM:
         anchor = np.asarray(initial_covariance, dtype=float) + np.eye(3) * _ANCHOR_SIGMA ** 2
         self.graph = PoseGraph(np.asarray(initial_pose, dtype=float), anchor,
                                robust_kernel_width=self.config.submaps.robust_kernel_width)
+        self.graph.optimize()
         self.frozen: list[FrozenSubmap] = []
         self.loops: list[LoopRecord] = []
         self.stats = SubmapStats()
