@@ -648,8 +648,10 @@ class SubmapConfig:
             A near-symmetric building matched turned round scores ~0.86, the truth 1.0
             (simulation, tests/submaps).
         loop_min_overlap_m: … and the matched wall length is at least this (m).
-        loop_max_ambiguity: … and the second-best distinct alignment scores at most this
-            fraction of the best (repetitive corridors match in several places).
+        loop_max_ambiguity: … and no distinct alignment that the match's own covariance
+            does not admit (beyond its 99 % region) scores more than this fraction of the
+            best (repetitive structure matches in several places; an alternative along a
+            corridor the covariance leaves free is the same answer, not a rival).
         loop_covariance_inflation: the matched relative pose's covariance is inflated by
             this factor (its points are not independent).
         loop_inlier_distance_m: after alignment a query point is an inlier when its
@@ -657,9 +659,12 @@ class SubmapConfig:
         loop_overlap_distance_m: … and it counts as overlapping the reference (the
             denominator of the inlier fraction) when that point is this close (m): two
             submaps overlap only partly, the rest of the query says nothing.
-        loop_min_information_ratio: a match is degenerate (a corridor, one arc) when the
-            smallest eigenvalue of its information, rotation scaled to metres at the
-            submap's radius, is below this fraction of the largest.
+        loop_min_information_ratio: a match is degenerate (a featureless corridor, one
+            arc) when the smallest eigenvalue of its information, rotation scaled to metres
+            at the submap's radius, is below this fraction of the largest. Above it the
+            match is kept and its covariance carries the weak direction (large variance
+            there): in the convention-centre logs the right matches had ratios of
+            0.001–0.016, a straight corridor has ~1e-30.
         loop_distinct_m, loop_distinct_rad: alignments farther apart than this (m) or
             turned more than this (rad) are distinct for the ambiguity test.
         loop_search_points: at most this many (evenly chosen) query points go into the
@@ -685,7 +690,7 @@ class SubmapConfig:
     loop_covariance_inflation: float = 10.0
     loop_inlier_distance_m: float = 0.1
     loop_overlap_distance_m: float = 1.0
-    loop_min_information_ratio: float = 0.02
+    loop_min_information_ratio: float = 1e-4
     loop_distinct_m: float = 0.5
     loop_distinct_rad: float = math.radians(10.0)
     loop_search_points: int = 400

@@ -279,7 +279,7 @@ class SubmapSLAM:
             if not match.ok:
                 self.stats.loop_rejections[match.reason] = self.stats.loop_rejections.get(match.reason, 0) + 1
                 continue
-            loop_id = self.graph.add_loop(int(j), k, match.relative, _proper(match.covariance))
+            loop_id = self.graph.add_loop(int(j), k, match.relative, _proper(match.covariance, window_m))
             self.loops.append(LoopRecord(int(j), k, match.relative, match.covariance,
                                          match.inlier_fraction, match.overlap_m, loop_id))
             self.stats.loop_closures += 1
@@ -316,11 +316,16 @@ class SubmapSLAM:
         return self.graph.loop_weights() if self.loops else np.empty(0)
 
 
-def _proper(cov: np.ndarray) -> np.ndarray:
-    """A covariance the optimiser can invert: symmetric, with a floor of 1e-6 m / rad σ
-    (a pose the local filter knows exactly, e.g. a submap of one scan)."""
+def _proper(cov: np.ndarray, max_sigma: float = 100.0) -> np.ndarray:
+    """A covariance the optimiser can use: symmetric, its eigenvalues clamped to
+    [(1e-6)², max_sigma²] — a pose the local filter knows exactly (a submap of one scan)
+    would be an infinite weight, a direction a match leaves free (a corridor) a nearly
+    singular one; either makes the linear systems ill-posed. ``max_sigma``: for a loop
+    closure the search window, which bounds its error anyway."""
     cov = 0.5 * (np.asarray(cov, dtype=float) + np.asarray(cov, dtype=float).T)
-    return cov + np.eye(3) * _ANCHOR_SIGMA ** 2
+    w, V = np.linalg.eigh(cov)
+    w = np.clip(w, _ANCHOR_SIGMA ** 2, max_sigma ** 2)
+    return (V * w) @ V.T
 
 
 def transform_spline(spline: MapSpline, pose: np.ndarray, submap: int = 0) -> MapSpline:
@@ -375,8 +380,9 @@ def _root(parent: np.ndarray, i: int) -> int:
 
 
 def _sample(curve: BSplineCurve, spacing_m: float) -> np.ndarray:
-    """(k, 2) points along ``curve`` about ``spacing_m`` apart (parameter steps: the
-    splines are fitted with chord-length parameters, close to arc length)."""
+    """(k, 2) points along ``curve`` about ``spacing_m`` apart: the splines are fitted with
+    chord-length parameters, so the parameter domain's length is close to the arc length
+    (and costs nothing, where :meth:`BSplineCurve.length` integrates)."""
     lo, hi = curve.domain
-    k = max(2, int(math.ceil(curve.length() / spacing_m)) + 1)
+    k = max(2, int(math.ceil((hi - lo) / spacing_m)) + 1)
     return curve.evaluate(np.linspace(lo, hi, k))

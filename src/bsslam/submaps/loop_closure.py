@@ -53,6 +53,9 @@ MIN_AGREEING_FRACTION = 2.0 / 3.0
 #: Radius of curvature (m) below which a sampled point is not used as a line in the
 #: point-to-line refinement (the refinement's gate is ~0.15–0.3 m).
 MIN_LINE_RADIUS_M = 1.0
+#: χ²(3) at 99 %: an alternative alignment within this Mahalanobis distance² of the
+#: match (under its covariance) is not a rival.
+_ADMITTED_CHI2 = 11.34
 #: Dense samples per point spacing when the curves are resampled by arc length.
 _DENSE_PER_SPACING = 8
 
@@ -255,6 +258,13 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
 
     alternative, alt_score = ref.alternative(search, guess, start, config.loop_distinct_m, config.loop_distinct_rad)
     ambiguity = alt_score / correlation if correlation > 0 else 1.0
+    if np.all(np.isfinite(covariance)):
+        # a rival the match's covariance admits (sliding along a corridor it leaves free)
+        # is the same answer, not an ambiguity
+        d = alternative - pose
+        d[2] = math.remainder(d[2], 2 * math.pi)
+        if float(d @ np.linalg.solve(covariance, d)) <= _ADMITTED_CHI2:
+            ambiguity = 0.0
 
     result = dict(inlier_fraction=fraction, overlap_m=overlap_m, ambiguity=ambiguity, information_ratio=info_ratio,
                   curves_overlapping=n_voting, curves_agreeing=n_agree, correlation=correlation,
