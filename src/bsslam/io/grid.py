@@ -70,10 +70,11 @@ class OccupancyGrid:
     def image(self, occupied_thresh: float = 0.65, free_thresh: float = 0.196) -> np.ndarray:
         """(H, W) uint8 trinary image: OCCUPIED where p > ``occupied_thresh``, FREE where
         p < ``free_thresh``, UNKNOWN elsewhere (map_server's own classification)."""
-        p = self.probabilities()
-        image = np.full(p.shape, UNKNOWN, dtype=np.uint8)
-        image[p < free_thresh] = FREE
-        image[p > occupied_thresh] = OCCUPIED
+        # compared in log-odds (p is monotonic in it): no float64 copy of a campus-sized grid
+        free, occupied = (np.float64(np.log(t / (1.0 - t))) for t in (free_thresh, occupied_thresh))
+        image = np.full(self.log_odds.shape, UNKNOWN, dtype=np.uint8)
+        image[self.log_odds < free] = FREE
+        image[self.log_odds > occupied] = OCCUPIED
         return image
 
 
@@ -203,7 +204,7 @@ def build_occupancy_grid(scans: Sequence, poses: np.ndarray, config: GridConfig,
             f"(a wild range or pose?); raise grid.max_cells or grid.resolution_m")
     width, height = int(size[0]), int(size[1])
     log_odds = np.zeros((height, width), dtype=np.float32)     # y-up while building
-    stamp = np.full((height, width), -1, dtype=np.int64)
+    stamp = np.full((height, width), -1, dtype=np.int32)   # 2s + 1 < 2³¹: at most ~10⁹ scans
     for batch in _beam_batches(scans, poses, config):
         integrate_scans(log_odds, stamp, batch.first_scan, (batch.origins - low) / res, batch.beam_start,
                         (batch.ends - low) / res, batch.hit, np.float32(config.log_odds_hit),

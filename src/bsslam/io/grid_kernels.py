@@ -23,7 +23,7 @@ def integrate_scans(log_odds, stamp, first_scan, origins, beam_start, ends, hit,
 
     Args:
         log_odds: (H, W) float32, y-up (row i covers y ∈ [i, i+1) in cell units).
-        stamp: (H, W) int64, initialised to −1: ``2s + 1`` when scan s hit the cell,
+        stamp: (H, W) int32, initialised to −1: ``2s + 1`` when scan s hit the cell,
             ``2s`` when scan s only passed through it. A cell takes one update per scan,
             and a return of a scan wins over that scan's pass-throughs in any order.
         first_scan: global index of the batch's first scan (scan numbers must increase
@@ -60,7 +60,7 @@ def draw_segments(log_odds, starts, ends, value):
     cells included, to ``value``: the same walk as the beams', so no cell a line clips at a
     corner is missed (as sampling points along it would)."""
     height, width = log_odds.shape
-    stamp = np.empty((0, 0), dtype=np.int64)       # not consulted when assigning
+    stamp = np.empty((0, 0), dtype=np.int32)       # not consulted when assigning
     for k in range(starts.shape[0]):
         _walk(log_odds, stamp, 0, starts[k, 0], starts[k, 1], ends[k, 0], ends[k, 1], value, value, True)
         col = int(math.floor(ends[k, 0]))
