@@ -17,7 +17,7 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-from rich.table import Table
+from rich.table import Column, Table
 from typer.core import TyperGroup
 
 from bsslam import __version__
@@ -448,7 +448,8 @@ def bench(
                               perturb=runs)
     except BsslamError as exc:
         fail(exc)
-    table = Table("log", "input", "scans", "wall s", "ms/scan", "splines", "max state", "submaps", "loops",
+    # The log and its input variant are the row's key: never wrapped, whatever the terminal.
+    table = Table(Column("log", no_wrap=True), Column("input", no_wrap=True), "scans", "wall s", "ms/scan", "splines", "max state", "submaps", "loops",
                   "peak RSS MB", "ATE m", "online ATE m", "odometry ATE m", "front end ATE m", "relations (Intel)",
                   title=f"bsslam bench ({config.mode}, backend {config.backend})")
     for row in rows:
@@ -459,7 +460,7 @@ def bench(
                       f"{row.wall_s:.1f}", f"{row.ms_per_scan:.1f}", str(row.splines), str(row.state_size),
                       str(row.submaps), str(row.loop_closures), f"{row.peak_rss_mb:.0f}", f"{row.ate_m:.3f}", f"{row.online_ate_m:.3f}", f"{row.odometry_ate_m:.3f}", f"{row.frontend_ate_m:.3f}",
                       row.relations)
-    Console(width=max(Console().width, 150)).print(table)
+    Console(width=max(Console().width, 200)).print(table)
     if perturb:
         spread = Table("log", "runs", "median ATE m", "min", "max", "float32", "(max−min)/median",
                        "worst/median", title=f"ATE over {perturb} runs with {1000 * perturb_sigma:g} mm range noise "
