@@ -519,9 +519,12 @@ def relocalize_submaps(slam: SubmapSLAM, records: list[_Record], config: SLAMCon
         if seed is not None:
             replay.insert(0, dataclasses.replace(seed.replay, delta=None, covariance=None))
             stamps = np.r_[seed.stamp, stamps]
-        local, local_points = relocalize(slam.local_map(int(k)), replay, stamps, config, np.zeros(3),
-                                         np.zeros((3, 3)), point_stride)
         skip = 0 if seed is None else 1
+        # Progress per frame, not per submap: a submap is hundreds of frames, and an
+        # interrupt raised from the callback must come as soon as it is asked for.
+        local, local_points = relocalize(slam.local_map(int(k)), replay, stamps, config, np.zeros(3),
+                                         np.zeros((3, 3)), point_stride,
+                                         progress=lambda i, _, done=done: progress(done + max(i - skip, 0), n))
         if point_stride:
             local_points = local_points[skip:]
         base, base_cov = slam.base_of(int(k))
@@ -532,7 +535,6 @@ def relocalize_submaps(slam: SubmapSLAM, records: list[_Record], config: SLAMCon
         steps = [i for i in idx if records[i].replay.scan is not None]
         seed = records[steps[-1]] if steps else seed
         done += idx.size
-        progress(done, n)
     stamps = np.array([r.stamp for r in records])
     return Trajectory(stamps, poses, covs), points
 
