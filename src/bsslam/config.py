@@ -629,6 +629,9 @@ class SubmapConfig:
             update is O(n²)) and the live covariance's memory (8 n² bytes).
         max_distance_m: … or when the robot has travelled this far in it (m): a submap
             is a local map, its drift small.
+        carry_over_m: a new submap starts with the old one's splines that come within
+            this distance of the robot (m), their covariance relative to it, instead of
+            with one scan's splines; 0 starts every submap empty.
         point_spacing_m: spacing of the points sampled on a frozen submap's splines for
             matching (m).
         loop_sigmas: a loop-closure search covers this many σ of the relative pose
@@ -678,6 +681,7 @@ class SubmapConfig:
     max_state_size: int = 400
     max_distance_m: float = 25.0
     point_spacing_m: float = 0.05
+    carry_over_m: float = 10.0
     loop_sigmas: float = 3.0
     loop_min_window_m: float = 2.0
     loop_max_window_m: float = 5.0
@@ -701,6 +705,7 @@ class SubmapConfig:
         _check(isinstance(self.max_state_size, int) and self.max_state_size >= 50,
                "submaps.max_state_size must be an integer ≥ 50")
         _check(self.max_distance_m > 0, "submaps.max_distance_m must be > 0")
+        _check(0 <= self.carry_over_m <= 100.0, "submaps.carry_over_m must be in [0, 100] m")
         _check(0 < self.point_spacing_m <= 1.0, "submaps.point_spacing_m must be in (0, 1] m")
         _check(self.loop_sigmas > 0, "submaps.loop_sigmas must be > 0")
         # The window is the correlative search's, bounded like the front end's.
@@ -767,7 +772,7 @@ class SLAMConfig:
     grid: GridConfig = field(default_factory=GridConfig)
     input: InputLimits = field(default_factory=InputLimits)
     submaps: SubmapConfig = field(default_factory=SubmapConfig)
-    backend: BackendName = "ekf"
+    backend: BackendName = "submaps"
     max_memory_mb: float = 1024.0
     mode: Mode = "slam"
     initial_pose_sigma: tuple[float, float, float] = (0.0, 0.0, 0.0)

@@ -18,6 +18,7 @@ from bsslam.pipeline import run_dataset
 from bsslam.se2 import between
 from bsslam.sim import SimConfig, get_world, simulate
 from bsslam.slam import MapSpline
+from bsslam.slam.state import JointState
 from bsslam.spline import BSplineCurve
 from bsslam.submaps.backend import SubmapSLAM, mark_surfaces, transform_spline
 
@@ -60,6 +61,7 @@ def test_the_second_lap_closes_loops_and_the_map(double_loop):
     bases = [gt[0]] + [gt[np.flatnonzero(sub == k - 1)[-1]] for k in range(1, sub.max() + 1)]
     for loop in result.submaps.loops:
         error = between(bases[loop.reference], bases[loop.query]) - loop.relative
+        error[2] = np.remainder(error[2] + np.pi, 2 * np.pi) - np.pi
         assert np.hypot(error[0], error[1]) < 0.2 and abs(error[2]) < 0.02, (loop, error)
     est, truth = result.trajectory, data.ground_truth
     e = between(truth.poses[-1], est.poses[-1])
@@ -77,9 +79,11 @@ def test_live_memory_is_counted_and_within_the_budget(double_loop):
     slam = result.submaps
     assert slam.nbytes == slam.local.state.nbytes + sum(f.nbytes for f in slam.frozen)
     assert live[:, 0].max() <= SLAMConfig().max_memory_mb * 2 ** 20
-    cap = 512   # the state's capacity doubles from 64: max_state_size 400 + one scan fits in 512
     assert max(f.nbytes for f in slam.frozen) < 2 ** 20
-    assert live[:, 0].max() - sum(f.nbytes for f in slam.frozen) < 8 * cap * (cap + 300)
+    # the state's capacity doubles from 64: max_state_size 400 + one scan fits in 512, so
+    # the local buffers never reach those of a 1024 capacity
+    assert live[:, 0].max() - sum(f.nbytes for f in slam.frozen) < JointState(np.zeros(3), np.zeros((3, 3)),
+                                                                               capacity=1024).nbytes
 
 
 def test_a_budget_too_small_stops_the_run_with_its_results():

@@ -42,6 +42,7 @@ from bsslam.errors import MemoryBudgetError
 from bsslam.scan import LaserScan
 from bsslam.se2 import between, compose, compose_with_covariance
 from bsslam.slam import MapSpline, SplineSLAM
+from bsslam.slam.features import SplineFeature
 from bsslam.slam.filter import StepReport
 from bsslam.spline import BSplineCurve
 from bsslam.submaps.loop_closure import SubmapShape, match_submaps
@@ -227,9 +228,16 @@ class SubmapSLAM:
         """Steps of the current submap that only seeded it (the scan that ended the last)."""
         return 1 if self.frozen else 0
 
-    def _new_local(self) -> SplineSLAM:
+    def _new_local(self, previous: SplineSLAM | None = None) -> SplineSLAM:
+        """A filter for a new submap whose frame is the robot's pose, with zero covariance;
+        with ``previous``, the splines it holds within ``submaps.carry_over_m`` of the
+        robot come along (see :func:`carry_over`)."""
         self._distance = 0.0
-        return SplineSLAM(self.config, initial_pose=np.zeros(3), initial_covariance=np.zeros((3, 3)))
+        local = SplineSLAM(self.config, initial_pose=np.zeros(3), initial_covariance=np.zeros((3, 3)))
+        if previous is not None:
+            cfg = self.config.submaps
+            carry_over(previous, local, cfg.carry_over_m, cfg.max_state_size)
+        return local
 
     def _freeze(self) -> None:
         local, k = self._local, self.submap_index
@@ -244,7 +252,7 @@ class SubmapSLAM:
             self.graph.optimize()
             self._bases = self.graph.poses()
         self._base_cov = self.graph.covariance(k + 1)
-        self._local = self._new_local()
+        self._local = self._new_local(local if self.config.submaps.carry_over_m > 0 else None)
         self.stats.submaps = k + 2
 
     def _close_loops(self, k: int) -> bool:
@@ -314,6 +322,69 @@ class SubmapSLAM:
     def loop_weights(self) -> np.ndarray:
         """(loops,) the robust kernel's weight of each accepted loop closure at the solution."""
         return self.graph.loop_weights() if self.loops else np.empty(0)
+
+
+def carry_over(previous: SplineSLAM, local: SplineSLAM, radius_m: float, max_state: int) -> int:
+    """Copy the splines of ``previous`` that come within ``radius_m`` of its robot into
+    ``local``, a new filter whose frame is that robot pose (its pose the origin with zero
+    covariance): their control points in the robot's frame, with their joint covariance
+    *relative to the robot* (J P Jᵀ over the pose and the splines, J the Jacobian of
+    p′ = R(φ)ᵀ (p − t)). The new submap then starts with the walls around it instead of one
+    scan's, so its first steps are localised as well as the old submap's last.
+
+    The copies carry information the old submap also used for its final pose (the
+    odometry-like constraint between the two): the graph counts those walls' share twice,
+    a small overconfidence of the chain, against a new map built from nothing at every
+    seam. The nearest splines come first, up to half of ``max_state`` (the new submap
+    must have room to grow). Returns the number of splines copied."""
+    pose = previous.pose
+    candidates = []
+    for f in previous.features.values():
+        if not f.in_state:
+            continue
+        box = f.curve(previous.state.x).bbox()      # xmin, ymin, xmax, ymax
+        gap = np.maximum(np.maximum(box[:2] - pose[:2], pose[:2] - box[2:]), 0.0)
+        if math.hypot(gap[0], gap[1]) <= radius_m:
+            candidates.append((math.hypot(gap[0], gap[1]), f))
+    # nearest first, at most half the submap's state: it must have room to grow
+    near, room = [], max_state // 2
+    for _, f in sorted(candidates, key=lambda item: item[0]):
+        if 2 * f.idx_x.shape[0] > room:
+            break
+        near.append(f)
+        room -= 2 * f.idx_x.shape[0]
+    if not near:
+        return 0
+    idx = np.concatenate([np.arange(3)] + [f.state_indices for f in near])
+    P = previous.state.block(idx, idx)
+    x = previous.state.x[idx[3:]]
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    # x holds, per spline, its n x-coordinates then its n y-coordinates
+    xs, ys, blocks = [], [], []
+    start = 0
+    for f in near:
+        n = f.idx_x.shape[0]
+        xs.append(np.arange(start, start + n))
+        ys.append(np.arange(start + n, start + 2 * n))
+        start += 2 * n
+    ix, iy = np.concatenate(xs), np.concatenate(ys)
+    dx, dy = x[ix] - pose[0], x[iy] - pose[1]
+    moved = np.empty_like(x)
+    moved[ix] = c * dx + s * dy
+    moved[iy] = -s * dx + c * dy
+    m = x.shape[0]
+    J = np.zeros((m, m + 3))
+    J[ix, 0], J[ix, 1], J[ix, 2] = -c, -s, -s * dx + c * dy
+    J[iy, 0], J[iy, 1], J[iy, 2] = s, -c, -c * dx - s * dy
+    J[ix, 3 + ix], J[ix, 3 + iy] = c, s
+    J[iy, 3 + ix], J[iy, 3 + iy] = -s, c
+    cov = J @ P @ J.T
+    new = local.state.append(moved, np.empty(0, dtype=np.intp), np.empty((m, 0)), 0.5 * (cov + cov.T))
+    for f, fx, fy in zip(near, xs, ys):
+        g = SplineFeature(local.spline_map.new_id(), f.degree, f.knots.copy(), idx_x=new[fx], idx_y=new[fy],
+                          observations=1)     # confirmed: the old submap's updates used it
+        local.spline_map.add(g)
+    return len(near)
 
 
 def _proper(cov: np.ndarray, max_sigma: float = 100.0) -> np.ndarray:
