@@ -138,7 +138,8 @@ class Checkpointer:
     Args:
         run_dir: the run folder (the file is ``run_dir/checkpoint.pkl``).
         every: when (:class:`CheckpointEvery`); off writes nothing.
-        header: the run's header; ``next_frame`` is filled in at each write.
+        header: the run's header; ``next_frame`` is filled in at each write, and an empty
+            ``log_sha256`` at the first (a run that never writes one never hashes its log).
         start_frame: the frame the run starts at (a resumed run's reader position).
         clock: seconds, monotonic (for tests).
 
@@ -178,6 +179,8 @@ class Checkpointer:
         Raises:
             InputError: the file cannot be written (the previous checkpoint stays).
         """
+        if not self.header.log_sha256:
+            self.header = CheckpointHeader(**{**asdict(self.header), "log_sha256": source_digest(self.header.log)})
         t0 = time.perf_counter()
         header = CheckpointHeader(**{**asdict(self.header), "next_frame": int(next_frame)})
         with atomic_write(self.path, "wb") as f:
