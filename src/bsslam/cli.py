@@ -14,7 +14,6 @@ from enum import Enum
 from pathlib import Path
 from typing import Iterator, List, Optional
 
-import click
 import typer
 from rich.console import Console
 from rich.markup import escape
@@ -295,6 +294,13 @@ _RESUME_FIXED = {"log": "LOG", "config_file": "--config", "out": "--out", "mode"
                  "viewer": "--viewer", "show_control_points": "--show-control-points"}
 
 
+def _on_command_line(ctx: typer.Context, name: str) -> bool:
+    """Whether the option ``name`` was given on the command line (not its default)."""
+    source = ctx.get_parameter_source(name)
+    # by name: typer may vendor its own click, whose ParameterSource is another enum
+    return source is not None and source.name == "COMMANDLINE"
+
+
 @app.command()
 def run(
     ctx: typer.Context,
@@ -327,8 +333,7 @@ def run(
     try:
         every = CheckpointEvery.parse(checkpoint_every)
         if resume is not None:
-            given = [flag for name, flag in _RESUME_FIXED.items()
-                     if ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE]
+            given = [flag for name, flag in _RESUME_FIXED.items() if _on_command_line(ctx, name)]
             if given:
                 raise ConfigError(f"--resume takes the log and options from the checkpoint: drop {', '.join(given)}")
         elif log is None:
@@ -336,8 +341,7 @@ def run(
     except BsslamError as exc:
         fail(exc)
     if resume is not None:
-        _resume_run(resume, every if ctx.get_parameter_source("checkpoint_every")
-                    == click.core.ParameterSource.COMMANDLINE else None)
+        _resume_run(resume, every if _on_command_line(ctx, "checkpoint_every") else None)
         return
     if log.is_dir() and not is_ros2_bag(log):
         try:

@@ -34,7 +34,7 @@ from typing import Any, Callable
 
 from bsslam import __version__
 from bsslam.errors import ConfigError, InputError
-from bsslam.io.atomic_file import atomic_write
+from bsslam.io.atomic_file import TEMP_SUFFIX, atomic_write
 
 CHECKPOINT_FILE = "checkpoint.pkl"
 #: Bumped whenever the header or the state's layout changes: an older checkpoint is refused.
@@ -151,6 +151,10 @@ class Checkpointer:
     def __init__(self, run_dir: str | os.PathLike, every: CheckpointEvery, header: CheckpointHeader, *,
                  start_frame: int = 0, clock: Callable[[], float] = time.monotonic) -> None:
         self.path = Path(run_dir) / CHECKPOINT_FILE
+        # a run killed while writing leaves its temporary (atomic_write's naming); this
+        # run is the folder's only writer now
+        for stale in self.path.parent.glob(f".{CHECKPOINT_FILE}.*{TEMP_SUFFIX}"):
+            stale.unlink(missing_ok=True)
         self.every = every
         self.header = header
         self._clock = clock
