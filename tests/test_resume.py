@@ -208,6 +208,29 @@ def test_a_crashed_run_resumed_writes_the_same_files(backend, checkpoint_at, cra
     assert (tmp_path / "latest").resolve() == run
 
 
+def test_an_interrupted_run_keeps_its_checkpoint_and_says_how_to_resume(room, uninterrupted, tmp_path, monkeypatch):
+    """Ctrl-C (or SIGTERM, which the command turns into one): the scans so far are written
+    and marked interrupted, exit 130; the checkpoint stays for --resume."""
+    log, config = room
+    write = Checkpointer.__call__
+
+    def interrupt_later(self, next_frame, mapper):
+        write(self, next_frame, mapper)
+        if next_frame == 33:
+            raise KeyboardInterrupt("SIGTERM")
+
+    monkeypatch.setattr(Checkpointer, "__call__", interrupt_later)
+    result = cli("run", log, "--config", config, "--backend", "ekf", "--steps", 90, "--out", tmp_path, "-q",
+                 "--checkpoint-every", 30, code=130)
+    monkeypatch.undo()
+    (run,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    assert f"bsslam run --resume {run}" in result.output
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["status"] == "interrupted" and summary["scans"] == 33 and read_header(run).next_frame == 30
+    cli("run", "--resume", run, "-q")
+    assert_same_results(uninterrupted["ekf"], run)
+
+
 def test_resume_refuses_a_changed_log_a_missing_checkpoint_and_options_of_its_own(room, uninterrupted, tmp_path):
     log, config = room
     copy = tmp_path / "room.clf"
