@@ -4,6 +4,7 @@ same files, byte for byte, as a run never stopped."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import pickle
@@ -20,7 +21,7 @@ from typer.testing import CliRunner
 from bsslam.cli import app
 from bsslam.errors import ConfigError, InputError
 from bsslam.io.checkpoint import (CHECKPOINT_FILE, CheckpointEvery, Checkpointer, CheckpointHeader, load_checkpoint,
-                                  read_header)
+                                  read_header, source_digest)
 from bsslam.slam.state import JointState
 from bsslam.submaps.pose_graph import PoseGraph
 
@@ -131,6 +132,21 @@ def test_a_failed_write_leaves_the_previous_checkpoint_whole(tmp_path, monkeypat
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.clf", CHECKPOINT_FILE]   # no temporary
     header, state = load_checkpoint(tmp_path)
     assert header.next_frame == 1 and state == {"frames": [1]}
+
+
+def test_the_digest_of_a_log_file_or_bag_folder_sees_any_change(tmp_path):
+    bag = tmp_path / "bag"
+    (bag / "sub").mkdir(parents=True)
+    (bag / "metadata.yaml").write_text("a")
+    (bag / "sub" / "x.db3").write_bytes(b"\0\1")
+    before = source_digest(bag)
+    assert before == source_digest(bag) and len(before) == 64
+    (bag / "sub" / "x.db3").write_bytes(b"\0\2")
+    assert source_digest(bag) != before
+    (bag / "sub" / "x.db3").write_bytes(b"\0\1")
+    (bag / "sub" / "x.db3").rename(bag / "x.db3")       # same bytes, another name
+    assert source_digest(bag) != before
+    assert source_digest(bag / "metadata.yaml") == hashlib.sha256(b"a").hexdigest()
 
 
 def test_the_pose_graph_pickles_as_its_calls_and_goes_on_bit_for_bit():
