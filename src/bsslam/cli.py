@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import logging
 import os
@@ -281,10 +282,30 @@ def simulate(
     console.print(f"results in [bold]{run_dir}[/bold] (map picture: {run_dir / 'map.png'})")
 
 
+CHECKPOINT_HELP = ("Save the run's whole state to checkpoint.pkl in its results folder every N scans, every "
+                   "N seconds (e.g. 60s) or never (0), so that --resume can finish a killed run with the same "
+                   "results. Removed when the run completes.")
+RESUME_HELP = ("Continue the run in this results folder from its last checkpoint (log and options from the "
+               "checkpoint; no LOG): the same trajectory and map as a run never stopped.")
+#: run's options that --resume takes from the checkpoint, with their flags
+_RESUME_FIXED = {"log": "LOG", "config_file": "--config", "out": "--out", "mode": "--mode", "backend": "--backend",
+                 "max_memory": "--max-memory", "fmt": "--format", "strict": "--strict", "steps": "--steps",
+                 "reference": "--reference", "scan_topic": "--scan-topic", "odom_topic": "--odom-topic",
+                 "viewer": "--viewer", "show_control_points": "--show-control-points"}
+
+
+def _on_command_line(ctx: typer.Context, name: str) -> bool:
+    """Whether the option ``name`` was given on the command line (not its default)."""
+    source = ctx.get_parameter_source(name)
+    # by name: typer may vendor its own click, whose ParameterSource is another enum
+    return source is not None and source.name == "COMMANDLINE"
+
+
 @app.command()
 def run(
-    log: Path = typer.Argument(..., help="CARMEN log (.clf/.log), ROS 1 bag (.bag), ROS 2 bag folder, or a "
-                               "folder of logs: each is run, its results under OUT/<log name>/."),
+    ctx: typer.Context,
+    log: Optional[Path] = typer.Argument(None, help="CARMEN log (.clf/.log), ROS 1 bag (.bag), ROS 2 bag folder, "
+                                         "or a folder of logs: each is run, its results under OUT/<log name>/."),
     config_file: Optional[Path] = typer.Option(None, "--config", help="YAML configuration of the filter."),
     out: Path = typer.Option(Path("results/run"), help=OUT_HELP),
     mode: Optional[str] = typer.Option(None, help="slam (default) or localization."),
@@ -301,11 +322,27 @@ def run(
                                               "(viewer.rrd in the results folder); pip install 'bsslam\\[viewer]'."),
     show_control_points: bool = typer.Option(False, "--show-control-points",
                                              help="Draw the splines' control points in map.png/map.svg."),
+    checkpoint_every: str = typer.Option("60s", metavar="N|Ns|0", help=CHECKPOINT_HELP),
+    resume: Optional[Path] = typer.Option(None, metavar="RUN_DIR", help=RESUME_HELP),
 ) -> None:
     """Run BS-SLAM on a laser log and write trajectory, map, grid and pictures."""
     options = dict(locals())  # every option of this call, for the runs of a folder's logs
+    from bsslam.io.checkpoint import CheckpointEvery
     from bsslam.io.log_paths import find_logs, is_ros2_bag
 
+    try:
+        every = CheckpointEvery.parse(checkpoint_every)
+        if resume is not None:
+            given = [flag for name, flag in _RESUME_FIXED.items() if _on_command_line(ctx, name)]
+            if given:
+                raise ConfigError(f"--resume takes the log and options from the checkpoint: drop {', '.join(given)}")
+        elif log is None:
+            raise ConfigError("name the LOG to run (or --resume RUN_DIR)")
+    except BsslamError as exc:
+        fail(exc)
+    if resume is not None:
+        _resume_run(resume, every if _on_command_line(ctx, "checkpoint_every") else None)
+        return
     if log.is_dir() and not is_ros2_bag(log):
         try:
             logs = find_logs([log])
@@ -314,38 +351,91 @@ def run(
         for one in logs:
             run(**{**options, "log": one, "out": out / one.stem})
         return
-    from bsslam.io import open_dataset
-    from bsslam.io.reader_config import ReaderConfig
+    from bsslam.io.checkpoint import CheckpointHeader
     from bsslam.io.results import interrupt_reason, run_folder
+
+    run_options = {"fmt": fmt, "strict": strict, "steps": steps, "scan_topic": scan_topic, "odom_topic": odom_topic,
+                   "reference": None if reference is None else os.fspath(reference.resolve()),
+                   "show_control_points": show_control_points}
+    place: dict = {}
+    try:
+        with signals_interrupt():
+            config = _overridden(_load_config(config_file), mode, backend, max_memory)
+            header = CheckpointHeader(log=os.fspath(log.resolve()), log_sha256="", config=config.to_dict(),
+                                      options=run_options)
+            # the folder is made only once the log opens
+            _run_log(header, config, lambda: run_folder(out), every, viewer, place)
+    except KeyboardInterrupt as exc:
+        interrupted(place.get("run_dir"), interrupt_reason(exc))
+    except BsslamError as exc:
+        fail(exc)
+
+
+def _resume_run(run_dir: Path, every) -> None:
+    """``bsslam run --resume RUN_DIR``: the run in RUN_DIR continued from its checkpoint,
+    with its log and options (and its checkpoint interval unless ``every`` is given)."""
+    from bsslam.config import SLAMConfig
+    from bsslam.io.checkpoint import CheckpointEvery, check_source, read_header
+    from bsslam.io.results import interrupt_reason, resumed_run_folder
+
+    try:
+        with signals_interrupt():
+            header = read_header(run_dir)
+            check_source(header)
+            config = SLAMConfig.from_dict(header.config)
+            every = every if every is not None else CheckpointEvery.parse(header.options.get("checkpoint_every", "60s"))
+            _run_log(header, config, lambda: resumed_run_folder(run_dir), every, None, {}, resume=True)
+    except KeyboardInterrupt as exc:
+        interrupted(run_dir, interrupt_reason(exc))
+    except BsslamError as exc:
+        fail(exc)
+
+
+def _run_log(header, config, folder, every, viewer: Optional[str], place: dict, resume: bool = False) -> None:
+    """The body of ``bsslam run`` for one log, fresh or resumed from the checkpoint in the
+    folder ``folder()`` yields (put in ``place["run_dir"]`` at once, for the message of an
+    interruption): run, write the outputs, print the summary; exits 130 on a partial
+    result."""
+    from bsslam.io import open_dataset
+    from bsslam.io.checkpoint import Checkpointer, load_checkpoint
+    from bsslam.io.reader_config import ReaderConfig
     from bsslam.io.trajectory_file import read_trajectory
     from bsslam.outputs import write_outputs
     from bsslam.pipeline import run_dataset
     from bsslam.viz.rerun_viewer import open_viewer
 
-    run_dir = None
-    try:
-        with signals_interrupt():
-            config = _overridden(_load_config(config_file), mode, backend, max_memory)
-            data = open_dataset(log, format=fmt, strict=strict, scan_topic=scan_topic, odom_topic=odom_topic,
-                                reader_config=ReaderConfig(limits=config.input))
-            ref = read_trajectory(reference) if reference else None
-            with run_folder(out) as run_dir:
-                with progress_bar(f"{log.name}", steps, "scans") as update:
-                    result = run_dataset(data, config, steps=steps, progress=update, total=steps,
-                                         relocalize_progress=next_phase(update, f"{log.name}: relocalising"),
-                                         viewer=open_viewer(viewer, run_dir) if viewer else None)
-                summary = write_outputs(result, run_dir, config, reference=ref, title=f"BS-SLAM: {log.name}",
-                                        show_control_points=show_control_points)
-    except KeyboardInterrupt as exc:
-        interrupted(run_dir, interrupt_reason(exc))
-    except BsslamError as exc:
-        fail(exc)
+    opts = header.options
+    log, steps = Path(header.log), opts["steps"]
+    data = open_dataset(log, format=opts["fmt"], strict=opts["strict"], scan_topic=opts["scan_topic"],
+                        odom_topic=opts["odom_topic"], reader_config=ReaderConfig(limits=config.input))
+    ref = read_trajectory(opts["reference"]) if opts["reference"] else None
+    header = dataclasses.replace(header, options={**opts, "checkpoint_every": str(every)})
+    with folder() as run_dir:
+        place["run_dir"] = run_dir
+        mapper, start = None, 0
+        if resume:
+            saved, mapper = load_checkpoint(run_dir)
+            start = saved.next_frame
+        checkpointer = Checkpointer(run_dir, every, header, start_frame=start)
+        with progress_bar(f"{log.name}", steps, "scans") as update:
+            result = run_dataset(data, config, steps=steps, progress=update, total=steps,
+                                 relocalize_progress=next_phase(update, f"{log.name}: relocalising"),
+                                 viewer=open_viewer(viewer, run_dir) if viewer else None,
+                                 mapper=mapper, start=start, checkpoint=checkpointer)
+        extra = checkpointer.figures() | ({"resumed_at_frame": start} if resume else {})
+        summary = write_outputs(result, run_dir, config, reference=ref, title=f"BS-SLAM: {log.name}",
+                                show_control_points=opts["show_control_points"], extra=extra)
+        if summary.get("status") == "complete":
+            checkpointer.remove()   # a complete run needs none; a partial one can still be resumed
     print_summary(summary, f"bsslam run {log}")
     if result.skipped.total:
         console.print(f"[yellow]skipped {result.skipped.total} input item(s):[/yellow] "
                       + ", ".join(f"{k}: {v}" for k, v in result.skipped.counts.items()))
         for ex in result.skipped.examples[:5]:
             console.print(f"  {ex}")
+    if summary.get("status") == "interrupted" and checkpointer.path.exists():
+        console.print(f"continue it from its last checkpoint: bsslam run --resume {escape(str(run_dir))}",
+                      soft_wrap=True)
     exit_if_partial(summary, run_dir)
     console.print(f"results in [bold]{run_dir}[/bold]")
 

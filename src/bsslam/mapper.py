@@ -273,6 +273,18 @@ class Mapper:
         self._gate = OdometryGate(self.limits)
         self._last_stamp: float | None = None
 
+    # -- pickling (a run's checkpoint, :mod:`bsslam.io.checkpoint`) ----------------------
+    def __getstate__(self) -> dict:
+        """Everything but the viewer (a window or a stream, not state): an unpickled
+        mapper has the null viewer until :attr:`viewer` is set again."""
+        state = self.__dict__.copy()
+        state["viewer"] = None
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self.viewer = NullViewer()
+
     # -- views --------------------------------------------------------------------------
     @property
     def slam(self) -> SplineSLAM | SubmapSLAM | None:

@@ -117,9 +117,10 @@ def write_steps_csv(path: Path, result: RunResult) -> None:
 
 def write_outputs(result: RunResult, run_dir: Path, config: SLAMConfig, *, walls=None,
                   reference: Trajectory | None = None, exact_reference: bool = False,
-                  title: str = "", show_control_points: bool = False) -> dict:
+                  title: str = "", show_control_points: bool = False, extra: dict | None = None) -> dict:
     """Write every output file into ``run_dir`` and return the summary; the pictures show
-    the splines' control points when ``show_control_points``.
+    the splines' control points when ``show_control_points``; ``extra`` entries are added
+    to the summary (e.g. the checkpoints' figures).
 
     Each file is written atomically; ``summary.json`` comes last, so its presence with
     ``"status": "complete"`` says every other file is there and whole
@@ -154,7 +155,7 @@ def write_outputs(result: RunResult, run_dir: Path, config: SLAMConfig, *, walls
         points=result.points if len(result.points) else None, title=title or result.name,
         control_points=show_control_points,
     )
-    summary = summarize(result, reference, exact_reference)
+    summary = {**summarize(result, reference, exact_reference), **(extra or {})}
     if getattr(result, "interrupted", False):
         why = getattr(result, "stop_reason", None) or "interrupted"
         return write_summary(run_dir, summary, "interrupted",

@@ -8,6 +8,8 @@ and, with ``--viewer``, a rerun viewer).
 
 from __future__ import annotations
 
+from typing import Callable
+
 from bsslam.config import SLAMConfig
 from bsslam.dataset import Dataset
 from bsslam.errors import MemoryBudgetError
@@ -20,7 +22,9 @@ __all__ = ["Progress", "RunResult", "relocalize", "run_dataset"]
 def run_dataset(dataset: Dataset, config: SLAMConfig, *, steps: int | None = None,
                 progress: Progress = _no_progress, total: int | None = None,
                 point_stride: int = 4, slam: SplineSLAM | None = None,
-                relocalize_progress: Progress = _no_progress, viewer: Viewer | None = None) -> RunResult:
+                relocalize_progress: Progress = _no_progress, viewer: Viewer | None = None,
+                mapper: Mapper | None = None, start: int = 0,
+                checkpoint: Callable[[int, Mapper], None] | None = None) -> RunResult:
     """Run the filter over (the first ``steps`` frames of) a dataset, then, when
     ``config.relocalize`` is on, localise every scan again in the final map.
 
@@ -38,15 +42,29 @@ def run_dataset(dataset: Dataset, config: SLAMConfig, *, steps: int | None = Non
         slam: an existing filter to continue (its state is not reset).
         relocalize_progress: progress of the second pass (done, total frames).
         viewer: shown every scan and the result (see :class:`bsslam.mapper.Viewer`).
+        mapper: a restored mapper to continue (a resumed run, :mod:`bsslam.io.checkpoint`)
+            instead of a new one; ``slam`` is then ignored, ``viewer`` replaces its viewer.
+        start: the index of the first frame to process: the frames before it are read and
+            skipped (they are in ``mapper`` already). The dataset must be the same one.
+        checkpoint: called after every frame with the index of the next frame and the
+            mapper (e.g. a :class:`bsslam.io.checkpoint.Checkpointer`, which saves it now
+            and then); it must not change the mapper.
     """
-    mapper = Mapper(config, viewer=viewer, slam=slam)
+    if mapper is None:
+        mapper = Mapper(config, viewer=viewer, slam=slam)
+    elif viewer is not None:
+        mapper.viewer = viewer
     interrupted, reason = False, None
     try:
         for i, frame in enumerate(dataset):
             if steps is not None and i >= steps:
                 break
+            if i < start:
+                continue
             mapper.add_frame(frame)   # a Dataset checked its frames against the input limits
             progress(i + 1, total)
+            if checkpoint is not None:
+                checkpoint(i + 1, mapper)
     except KeyboardInterrupt:
         interrupted = True
     except MemoryBudgetError as exc:   # the results so far are kept, with the reason

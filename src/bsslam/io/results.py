@@ -12,6 +12,10 @@ The lifecycle of a run folder (:func:`run_folder`):
 
 A run that fails or is interrupted gets a ``summary.json`` with ``"status": "failed"`` or
 ``"interrupted"`` and the ``"reason"``, and ``latest`` stays on the last good run.
+
+A run resumed from its checkpoint (``bsslam run --resume``) goes on in its own folder
+(:func:`resumed_run_folder`): same lifecycle from step 2, ``latest`` repointed at it once
+it completes.
 """
 
 from __future__ import annotations
@@ -143,6 +147,34 @@ def run_folder(out: str | os.PathLike) -> Iterator[Path]:
     wrote a complete summary; on a KeyboardInterrupt mark it interrupted, on any other
     exception failed (with the exception's message as reason), and re-raise."""
     run = create_run_dir(out)
+    try:
+        yield run
+    except KeyboardInterrupt as exc:
+        mark_unfinished(run, "interrupted", interrupt_reason(exc))
+        raise
+    except BaseException as exc:
+        mark_unfinished(run, "failed", str(exc) or type(exc).__name__)
+        raise
+    publish_run(run)
+
+
+@contextlib.contextmanager
+def resumed_run_folder(run_dir: str | os.PathLike) -> Iterator[Path]:
+    """:func:`run_folder` for a run that goes on in its existing folder (a resume from its
+    checkpoint): the old ``summary.json`` (an interrupted or failed status, or none after a
+    SIGKILL) is removed first, so the folder says what *this* attempt did; the files are
+    overwritten as the run writes them, and ``latest`` moves only once it completes.
+
+    Raises:
+        InputError: ``run_dir`` is no folder, or its summary cannot be removed.
+    """
+    run = Path(run_dir)
+    if not run.is_dir():
+        raise InputError("no such run folder", os.fspath(run))
+    try:
+        (run / SUMMARY_FILE).unlink(missing_ok=True)
+    except OSError as exc:
+        raise _out_error(exc, run / SUMMARY_FILE, "remove the old summary") from None
     try:
         yield run
     except KeyboardInterrupt as exc:

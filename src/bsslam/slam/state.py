@@ -104,6 +104,37 @@ class JointState:
         self._P[:3, :3] = 0.5 * (C + C.T)   # exactly symmetric: rows are served as columns
         self._reset()
 
+    # -- pickling ------------------------------------------------------------------------
+    def __getstate__(self) -> dict:
+        """Only the live part of each buffer (a checkpoint of a run must not carry the
+        capacity's slack: the covariance buffer is up to 4× its live block)."""
+        n, a, e, m = self.size, self._a, self._e, self._bg_count
+        state = {k: v for k, v in self.__dict__.items() if not isinstance(v, np.ndarray)}
+        state["_shapes"] = {k: (v.shape, v.dtype.str) for k, v in self.__dict__.items() if isinstance(v, np.ndarray)}
+        state["_live"] = {
+            "_x": self._x[:n].copy(), "_P": self._P[:n, :n].copy(), "_B": self._B[:n, :a].copy(),
+            "_G": self._G[:a, :a].copy(), "_reg": self._reg[:n].copy(), "_E": self._E[:e].copy(),
+            "_epos": self._epos[:n].copy(), "_PE": self._PE[:e, :e].copy(), "_K": self._K[:a, :e].copy(),
+            "_bg": self._bg[:m, :a].copy(), "_bg_index": self._bg_index[:m].copy(),
+            "_bg_slot": self._bg_slot.copy(),
+        }
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        """The buffers at their capacity again (same shapes, so the same strides and the
+        same arithmetic), the live parts copied in; the rest is never read before it is
+        written (−1 for the index maps, zeros elsewhere: G and K are zero outside their
+        live blocks anyway)."""
+        state = dict(state)
+        shapes, live = state.pop("_shapes"), state.pop("_live")
+        self.__dict__.update(state)
+        for name, (shape, dtype) in shapes.items():
+            fill = -1 if name in ("_reg", "_epos", "_bg_slot") else 0
+            buffer = np.full(shape, fill, dtype=np.dtype(dtype))
+            part = live[name]
+            buffer[tuple(slice(0, k) for k in part.shape)] = part
+            setattr(self, name, buffer)
+
     # -- views ---------------------------------------------------------------------------
     @property
     def x(self) -> np.ndarray:

@@ -30,6 +30,14 @@ that new factors touch, so an odometry update costs roughly a constant; a loop c
 re-eliminates the loop's span and is followed by a few extra iterations so that the
 relinearisation (and the robust weights, which are recomputed at relinearisation)
 converges.
+
+iSAM2's objects do not pickle. A :class:`PoseGraph` pickles as the calls that built it
+(its arguments, then every :meth:`add_node`, :meth:`add_loop`, :meth:`optimize` and
+marginal query, with their arguments) and unpickles by making them again: iSAM2 is
+deterministic, so the replayed solver holds the same numbers bit for bit (the marginal
+queries are replayed too because they fill iSAM2's caches of clique marginals). That is
+what a run's checkpoint needs (:mod:`bsslam.io.checkpoint`); the log is a few calls per
+submap.
 """
 
 from __future__ import annotations
@@ -119,6 +127,10 @@ class PoseGraph:
             raise ValueError(f"max_iterations must be an integer ≥ 0, got {max_iterations!r}")
         self.robust_kernel_width = float(robust_kernel_width)
         self._max_iterations = max_iterations
+        # the calls that built this graph, replayed on unpickling (see the module docstring)
+        self._init_args = (first_pose.copy(), first_covariance.copy(), self.robust_kernel_width,
+                           float(relinearize_threshold), max_iterations)
+        self._calls: list[tuple] = []
 
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(float(relinearize_threshold))
@@ -173,6 +185,7 @@ class PoseGraph:
         """
         relative = _check_pose(relative, "relative")
         covariance = _check_covariance(covariance, "covariance")
+        self._calls.append(("add_node", relative.copy(), covariance.copy()))
         previous = self._size - 1
         z = gtsam.Pose2(*relative)
         noise = gtsam.noiseModel.Gaussian.Covariance(_to_tangent(covariance, relative[2]))
@@ -196,6 +209,7 @@ class PoseGraph:
             raise ValueError("a loop closure needs two distinct nodes")
         relative = _check_pose(relative, "relative")
         covariance = _check_covariance(covariance, "covariance")
+        self._calls.append(("add_loop", i, j, relative.copy(), covariance.copy()))
         gaussian = gtsam.noiseModel.Gaussian.Covariance(_to_tangent(covariance, relative[2]))
         robust = gtsam.noiseModel.Robust.Create(self._kernel, gaussian)
         factor = gtsam.BetweenFactorPose2(i, j, gtsam.Pose2(*relative), robust)
@@ -214,6 +228,7 @@ class PoseGraph:
         ``max_iterations`` extra iterations)."""
         if self._new_factors.size() == 0 and self._new_values.size() == 0:
             return
+        self._calls.append(("optimize",))
         self._isam.update(self._new_factors, self._new_values)
         if self._loop_pending:
             for _ in range(self._max_iterations):
@@ -228,6 +243,18 @@ class PoseGraph:
         self._values = self._isam.calculateBestEstimate()
         self._poses[:self._size] = gtsam.utilities.extractPose2(self._values)
         self._optimized_size = self._size
+
+    # -- pickling ------------------------------------------------------------------------
+
+    def __getstate__(self) -> dict:
+        return {"init_args": self._init_args, "calls": list(self._calls)}
+
+    def __setstate__(self, state: dict) -> None:
+        first_pose, first_covariance, width, threshold, max_iterations = state["init_args"]
+        self.__init__(first_pose, first_covariance, robust_kernel_width=width,
+                      relinearize_threshold=threshold, max_iterations=max_iterations)
+        for name, *args in state["calls"]:
+            getattr(self, name)(*args)     # each call records itself again
 
     # -- reading -------------------------------------------------------------------------
 
@@ -264,6 +291,7 @@ class PoseGraph:
         """Marginal covariance (3, 3) of node i's coordinates in the map frame (bsslam
         convention), at the current linearisation point."""
         i = self._check_optimized(i, "i")
+        self._calls.append(("covariance", i))
         return _from_tangent(self._isam.marginalCovariance(i), self._poses[i, 2])
 
     def relative(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
@@ -276,6 +304,7 @@ class PoseGraph:
         rel = np.array([r.x(), r.y(), r.theta()])
         if i == j:
             return rel, np.zeros((3, 3))
+        self._calls.append(("relative", i, j))
         joint = self._isam.jointMarginalCovariance([i, j])
         S = np.block([[joint.at(i, i), joint.at(i, j)], [joint.at(j, i), joint.at(j, j)]])
         # Right perturbations: (pi·Exp(a))⁻¹ (pj·Exp(b)) ≈ r·Exp(b − Ad(r⁻¹) a).
