@@ -135,6 +135,7 @@ class SubmapSLAM:
                                robust_kernel_width=self.config.submaps.robust_kernel_width)
         self.graph.optimize()
         self.frozen: list[FrozenSubmap] = []
+        self._frozen_bytes = 0
         self.loops: list[LoopRecord] = []
         self.stats = SubmapStats()
         self._max_bytes = int(self.config.max_memory_mb * 2 ** 20)
@@ -181,7 +182,9 @@ class SubmapSLAM:
     def nbytes(self) -> int:
         """Bytes of the live estimator arrays: the local filter's covariance storage and
         the frozen submaps' arrays (the pose graph's few hundred nodes are negligible)."""
-        return self._local.state.nbytes + sum(f.nbytes for f in self.frozen)
+        # the frozen submaps' bytes are summed as they freeze: this runs every scan, and a
+        # sum over every frozen spline would grow with the building
+        return self._local.state.nbytes + self._frozen_bytes
 
     @property
     def map(self) -> list[MapSpline]:
@@ -245,6 +248,7 @@ class SubmapSLAM:
         shape = SubmapShape.from_curves([s.curve for s in splines], self.config.submaps.point_spacing_m)
         frozen = FrozenSubmap(k, splines, shape, local.pose, local.pose_covariance, local.steps)
         self.frozen.append(frozen)
+        self._frozen_bytes += frozen.nbytes
         self.graph.add_node(frozen.end_pose, _proper(frozen.end_covariance))
         self.graph.optimize()
         self._bases = self.graph.poses()
