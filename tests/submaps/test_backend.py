@@ -20,7 +20,7 @@ from bsslam.sim import SimConfig, get_world, simulate
 from bsslam.slam import MapSpline
 from bsslam.slam.state import JointState
 from bsslam.spline import BSplineCurve
-from bsslam.submaps.backend import SubmapSLAM, mark_surfaces, transform_spline
+from bsslam.submaps.backend import SURFACE_SPACING_M, SubmapSLAM, mark_surfaces, transform_spline
 
 
 def _config(**submaps) -> SLAMConfig:
@@ -137,10 +137,11 @@ def test_surfaces_join_the_same_wall_of_two_submaps_only():
     other_wall = _line(0.0, 1.0, 4.0, 1.0)
     splines = [MapSpline(0, wall, cov, submap=0), MapSpline(1, same_wall_again, cov, submap=1),
                MapSpline(2, other_wall, cov, submap=1), MapSpline(3, _line(0.0, 0.05, 4.0, 0.05), cov, submap=0)]
-    s = mark_surfaces(splines, 0.05)
-    assert s[0].surface == s[1].surface == 0
-    assert s[2].surface == 2
-    # two splines of one submap are never joined directly (the filter keeps them apart on
-    # purpose); here spline 3 joins through spline 1 of the other submap
-    assert s[3].surface == 0
-    assert mark_surfaces(splines[:1] + splines[2:3], 0.05)[1].surface == 1
+    for spacing in (0.05, SURFACE_SPACING_M):     # the matching's and the map's sampling
+        s = mark_surfaces(splines, spacing)
+        assert s[0].surface == s[1].surface == 0
+        assert s[2].surface == 2
+        # two splines of one submap are never joined directly (the filter keeps them apart
+        # on purpose); here spline 3 joins through spline 1 of the other submap
+        assert s[3].surface == 0
+        assert mark_surfaces(splines[:1] + splines[2:3], spacing)[1].surface == 1

@@ -190,7 +190,7 @@ class SubmapSLAM:
     def map(self) -> list[MapSpline]:
         """Every submap's splines in its optimised frame (map frame), covariance blocks
         rotated with them; splines of two submaps lying on one another share a ``surface``."""
-        return mark_surfaces(self._global_splines(), self.config.submaps.point_spacing_m)
+        return mark_surfaces(self._global_splines(), SURFACE_SPACING_M)
 
     @property
     def curves(self) -> list[BSplineCurve]:
@@ -414,6 +414,12 @@ def transform_spline(spline: MapSpline, pose: np.ndarray, submap: int = 0) -> Ma
     T = np.block([[c * eye, -s * eye], [s * eye, c * eye]])
     cov = T @ spline.covariance @ T.T
     return MapSpline(spline.id, curve, cov, submap=submap, surface=spline.surface)
+
+
+#: Spacing (m) of the points compared to find splines on one surface: twice the default
+#: tolerance, so a point meets at most one or two neighbours of its own curve. At the
+#: matching's 5 cm the campus map's point pairs took over a gigabyte.
+SURFACE_SPACING_M = 0.2
 
 
 def mark_surfaces(splines: list[MapSpline], spacing_m: float, tolerance_m: float = 0.1,
