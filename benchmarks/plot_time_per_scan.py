@@ -2,7 +2,7 @@
 
     python benchmarks/plot_time_per_scan.py RUN_DIR [RUN_DIR ...] --out docs/campus_ms_per_scan.png
 
-A benchmark, not a test: it prints, per run, the mean ms per scan over the first and the
+A benchmark, not a test: it prints, per run, the mean and median ms per scan over the first and the
 last 10 % of the scans after the first submap (issue 16's flatness figure) and draws every
 scan's time (dots) with a running median over 50 scans.
 """
@@ -32,9 +32,12 @@ def main() -> None:
         after = index[submap > 0] if np.any(submap > 0) else index     # beyond the first submap
         tenth = max(1, after.size // 10)
         first, last = ms[after[:tenth]].mean(), ms[after[-tenth:]].mean()
+        # the mean carries the rare freezes (loop closure: seconds); the median the typical scan
+        first_median, last_median = np.median(ms[after[:tenth]]), np.median(ms[after[-tenth:]])
         label = run.resolve().name if run.name != "latest" else run.resolve().parent.name
         print(f"{label}: {ms.size} scans, {submap.max() + 1} submaps; ms per scan, first 10 % beyond the first "
-              f"submap {first:.2f}, last 10 % {last:.2f} (ratio {last / first:.2f}); mean {ms.mean():.2f}, "
+              f"submap {first:.2f}, last 10 % {last:.2f} (ratio {last / first:.2f}); medians {first_median:.2f} and "
+              f"{last_median:.2f} (ratio {last_median / first_median:.2f}); mean {ms.mean():.2f}, "
               f"max {ms.max():.0f}")
         ax.plot(index, ms, ".", ms=2, alpha=0.35)
         k = 50

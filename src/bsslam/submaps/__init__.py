@@ -8,3 +8,7 @@ graph with loop closures between submaps (``backend: submaps``).
 - :mod:`bsslam.submaps.backend`: the orchestration (local filter, freezing, loop closure,
   one global map and trajectory).
 """
+
+from bsslam.submaps.backend import FrozenSubmap, SubmapSLAM
+
+__all__ = ["FrozenSubmap", "SubmapSLAM"]
