@@ -146,7 +146,14 @@ def run_folder(out: str | os.PathLike) -> Iterator[Path]:
     """The lifecycle of one run folder: create it, yield it, then publish it when the body
     wrote a complete summary; on a KeyboardInterrupt mark it interrupted, on any other
     exception failed (with the exception's message as reason), and re-raise."""
-    run = create_run_dir(out)
+    with _published(create_run_dir(out)) as run:
+        yield run
+
+
+@contextlib.contextmanager
+def _published(run: Path) -> Iterator[Path]:
+    """Yield ``run``; publish it after the body, or mark it interrupted (KeyboardInterrupt)
+    or failed (any other exception, its message the reason) and re-raise."""
     try:
         yield run
     except KeyboardInterrupt as exc:
@@ -175,12 +182,5 @@ def resumed_run_folder(run_dir: str | os.PathLike) -> Iterator[Path]:
         (run / SUMMARY_FILE).unlink(missing_ok=True)
     except OSError as exc:
         raise _out_error(exc, run / SUMMARY_FILE, "remove the old summary") from None
-    try:
-        yield run
-    except KeyboardInterrupt as exc:
-        mark_unfinished(run, "interrupted", interrupt_reason(exc))
-        raise
-    except BaseException as exc:
-        mark_unfinished(run, "failed", str(exc) or type(exc).__name__)
-        raise
-    publish_run(run)
+    with _published(run) as published:
+        yield published
