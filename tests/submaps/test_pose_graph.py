@@ -4,11 +4,14 @@ first-order propagation, and incremental against batch solving."""
 
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
 from bsslam import se2
+from bsslam.errors import FilterError
 from bsslam.submaps.pose_graph import PoseGraph
 
 WIDE = 1e6  # a Cauchy kernel this wide is Gaussian for every residual here
@@ -319,3 +322,58 @@ def test_invalid_input_is_rejected(call):
     graph.add_node([1.0, 0.0, 0.0], np.eye(3))
     with pytest.raises(ValueError):
         call(graph)
+
+
+def _square_graph() -> PoseGraph:
+    """Four nodes around a 2 m square, optimised, no loop closure yet."""
+    g = PoseGraph(np.zeros(3))
+    for _ in range(3):
+        g.add_node(np.array([2.0, 0.0, np.pi / 2]), np.diag([1e-4, 1e-4, 1e-5]))
+    g.optimize()
+    return g
+
+
+def _fail_once(graph: PoseGraph, when_loop_pending: bool = True):
+    """Make the next iSAM2 update (with a loop pending) fail as gtsam does on an ill-posed system."""
+    failed = []
+
+    def update():
+        if not failed and (graph._loop_pending or not when_loop_pending):
+            failed.append(True)
+            raise RuntimeError("\nIndeterminate linear system detected while working near variable\n3 (Symbol: 3).")
+        PoseGraph._update(graph)
+    graph._update = update
+    return failed
+
+
+def test_an_ill_posed_loop_closure_is_dropped_and_the_graph_rebuilt_without_it():
+    g = _square_graph()
+    g.add_loop(0, 3, np.array([0.0, -2.0, -np.pi / 2]), np.diag([1e-3, 1e-3, 1e-4]))
+    g.optimize()
+    g.add_node(np.array([1.0, 0.0, 0.0]), np.diag([1e-4, 1e-4, 1e-5]))
+    g.add_loop(1, 4, np.array([0.0, 1.0, 0.0]), np.diag([1e-3, 1e-3, 1e-4]))
+    failed = _fail_once(g)
+    assert g.optimize() == [1] and failed            # the second loop (id 1) went
+    # the same as a graph that never had that loop, bit for bit
+    ref = _square_graph()
+    ref.add_loop(0, 3, np.array([0.0, -2.0, -np.pi / 2]), np.diag([1e-3, 1e-3, 1e-4]))
+    ref.optimize()
+    ref.add_node(np.array([1.0, 0.0, 0.0]), np.diag([1e-4, 1e-4, 1e-5]))
+    ref.optimize()
+    assert g.loop_count == 1 and g.loops == [(0, 3)]
+    np.testing.assert_array_equal(g.poses(), ref.poses())
+    np.testing.assert_array_equal(g.covariance(4), ref.covariance(4))
+    # and it goes on: a later loop closure is taken, and the graph pickles without the dropped one
+    g.add_loop(1, 4, np.array([0.0, 1.0, 0.0]), np.diag([1e-3, 1e-3, 1e-4]))
+    assert g.optimize() == []
+    back = pickle.loads(pickle.dumps(g))
+    np.testing.assert_array_equal(back.poses(), g.poses())
+    assert back.loops == [(0, 3), (1, 4)]
+
+
+def test_an_ill_posed_graph_without_a_new_loop_closure_is_a_filter_error():
+    g = _square_graph()
+    g.add_node(np.array([1.0, 0.0, 0.0]), np.diag([1e-4, 1e-4, 1e-5]))
+    _fail_once(g, when_loop_pending=False)
+    with pytest.raises(FilterError, match="ill-posed"):
+        g.optimize()

@@ -253,7 +253,7 @@ class SubmapSLAM:
         self.graph.optimize()
         self._bases = self.graph.poses()
         if self._close_loops(k):
-            self.graph.optimize()
+            self._drop_loops(self.graph.optimize())
             self._bases = self.graph.poses()
         self._base_cov = self.graph.covariance(k + 1)
         self._local = self._new_local(local if self.config.submaps.carry_over_m > 0 else None)
@@ -297,6 +297,16 @@ class SubmapSLAM:
             self.stats.loop_closures += 1
             added = True
         return added
+
+    def _drop_loops(self, dropped: list[int]) -> None:
+        """Forget the loop closures the optimiser dropped (with them the system was
+        ill-posed): a near-singular match, counted as a rejection ``ill_posed``."""
+        if not dropped:
+            return
+        gone = set(dropped)
+        self.loops = [loop for loop in self.loops if loop.loop_id not in gone]
+        self.stats.loop_closures -= len(gone)
+        self.stats.loop_rejections["ill_posed"] = self.stats.loop_rejections.get("ill_posed", 0) + len(gone)
 
     def _check_memory(self) -> None:
         used = self.nbytes

@@ -45,6 +45,8 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from bsslam.errors import FilterError
+
 #: Default σ² of node 0's prior: the map frame is defined by node 0, held (almost) fixed.
 _ANCHOR_VARIANCE = 1e-9
 
@@ -222,13 +224,45 @@ class PoseGraph:
 
     # -- solving -------------------------------------------------------------------------
 
-    def optimize(self) -> None:
+    def optimize(self) -> list[int]:
         """Put the factors and nodes added since the last call into iSAM2 and update the
         estimate. After a loop closure, iterate until no node needs relinearising (at most
-        ``max_iterations`` extra iterations)."""
+        ``max_iterations`` extra iterations).
+
+        Returns the ids of the loop factors added since the last call that were dropped
+        because iSAM2 found the system ill-posed with them (usually none): the graph is
+        then rebuilt from its calls without them, and the ids of later loops shift down.
+
+        Raises:
+            FilterError: iSAM2 found the system ill-posed without a new loop closure.
+        """
         if self._new_factors.size() == 0 and self._new_values.size() == 0:
-            return
+            return []
         self._calls.append(("optimize",))
+        try:
+            self._update()
+        except RuntimeError as exc:   # gtsam's IndeterminateLinearSystemException
+            return self._drop_pending_loops(exc)
+        return []
+
+    def _drop_pending_loops(self, exc: RuntimeError) -> list[int]:
+        """Rebuild the graph from its calls without the loop factors added since the last
+        successful :meth:`optimize` (iSAM2's state is not usable after a failed update),
+        then optimise the new nodes alone."""
+        calls = self._calls[:-1]                      # the failed optimize
+        last = max((k for k, c in enumerate(calls) if c[0] == "optimize"), default=-1)
+        pending = calls[last + 1:]
+        loops = [c for c in pending if c[0] == "add_loop"]
+        if not loops:
+            raise FilterError(f"the pose graph is ill-posed ({str(exc).strip().splitlines()[0]}); "
+                              "the submaps' constraints are degenerate") from None
+        first_dropped = len(self._loop_factors) - len(loops)
+        self.__setstate__({"init_args": self._init_args,
+                           "calls": calls[:last + 1] + [c for c in pending if c[0] != "add_loop"]})
+        self.optimize()
+        return list(range(first_dropped, first_dropped + len(loops)))
+
+    def _update(self) -> None:
         self._isam.update(self._new_factors, self._new_values)
         if self._loop_pending:
             for _ in range(self._max_iterations):
