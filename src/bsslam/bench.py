@@ -157,10 +157,14 @@ def bench_log(log: Path, config: SLAMConfig, steps: int | None = None, progress=
 def _bench_or_failure(job: tuple[Path, Perturbation | None], config: SLAMConfig,
                       steps: int | None) -> BenchRow | BenchFailure:
     log, perturbation = job
+    name = log.name if perturbation is None else f"{log.name} ({perturbation.label})"
     try:
         return bench_log(log, config, steps=steps, perturbation=perturbation)
     except BsslamError as exc:  # one bad log must not cost the others' figures
-        return BenchFailure(log.name, str(exc))
+        return BenchFailure(name, str(exc))
+    except Exception as exc:  # nor one bug: it is reported (red, by type) with the figures of the rest
+        first = (str(exc).strip().splitlines() or [""])[0]
+        return BenchFailure(name, f"{type(exc).__name__}: {first}")
 
 
 def bench_logs(logs: Sequence[Path], config: SLAMConfig, steps: int | None = None, *,
