@@ -333,27 +333,52 @@ def _square_graph() -> PoseGraph:
     return g
 
 
-def _fail_once(graph: PoseGraph, when_loop_pending: bool = True):
-    """Make the next iSAM2 update (with a loop pending) fail as gtsam does on an ill-posed system."""
+def _fail(graph: PoseGraph, *, batch_too: bool, when_loop_pending: bool = True) -> list:
+    """Make the next iSAM2 update (with a loop pending) fail as gtsam does on an ill-posed
+    system, and with ``batch_too`` the batch re-solve as well."""
     failed = []
+    message = "\nIndeterminate linear system detected while working near variable\n3 (Symbol: 3)."
 
     def update():
         if not failed and (graph._loop_pending or not when_loop_pending):
-            failed.append(True)
-            raise RuntimeError("\nIndeterminate linear system detected while working near variable\n3 (Symbol: 3).")
+            failed.append("isam2")
+            raise RuntimeError(message)
         PoseGraph._update(graph)
-    graph._update = update
+
+    def batch():
+        if batch_too:
+            failed.append("batch")
+            raise RuntimeError(message)
+        PoseGraph._solve_in_batch(graph)
+    graph._update, graph._solve_in_batch = update, batch
     return failed
 
 
-def test_an_ill_posed_loop_closure_is_dropped_and_the_graph_rebuilt_without_it():
+def _with_two_loops(fail=None) -> tuple[PoseGraph, list[int]]:
     g = _square_graph()
     g.add_loop(0, 3, np.array([0.0, -2.0, -np.pi / 2]), np.diag([1e-3, 1e-3, 1e-4]))
     g.optimize()
     g.add_node(np.array([1.0, 0.0, 0.0]), np.diag([1e-4, 1e-4, 1e-5]))
     g.add_loop(1, 4, np.array([0.0, 1.0, 0.0]), np.diag([1e-3, 1e-3, 1e-4]))
-    failed = _fail_once(g)
-    assert g.optimize() == [1] and failed            # the second loop (id 1) went
+    failed = fail(g) if fail else None
+    return g, g.optimize(), failed
+
+
+def test_an_ill_posed_isam2_update_is_solved_in_batch_instead():
+    """iSAM2 failing on a well-posed graph: the batch solution (Levenberg–Marquardt) is
+    the optimum the incremental solver would have reached, and iSAM2 goes on from it."""
+    g, dropped, failed = _with_two_loops(lambda g: _fail(g, batch_too=False))
+    ref, _, _ = _with_two_loops()
+    assert dropped == [] and failed == ["isam2"] and g.loop_count == 2
+    np.testing.assert_allclose(g.poses(), ref.poses(), atol=1e-6)
+    np.testing.assert_allclose(g.covariance(4), ref.covariance(4), atol=1e-8)   # entries ~1e-4 m²
+    g.add_node(np.array([1.0, 0.0, 0.0]), np.diag([1e-4, 1e-4, 1e-5]))
+    assert g.optimize() == [] and g.size == 6
+
+
+def test_an_ill_posed_loop_closure_is_dropped_and_the_graph_rebuilt_without_it():
+    g, dropped, failed = _with_two_loops(lambda g: _fail(g, batch_too=True))
+    assert dropped == [1] and failed == ["isam2", "batch"]     # the second loop (id 1) went
     # the same as a graph that never had that loop, bit for bit
     ref = _square_graph()
     ref.add_loop(0, 3, np.array([0.0, -2.0, -np.pi / 2]), np.diag([1e-3, 1e-3, 1e-4]))
@@ -374,6 +399,6 @@ def test_an_ill_posed_loop_closure_is_dropped_and_the_graph_rebuilt_without_it()
 def test_an_ill_posed_graph_without_a_new_loop_closure_is_a_filter_error():
     g = _square_graph()
     g.add_node(np.array([1.0, 0.0, 0.0]), np.diag([1e-4, 1e-4, 1e-5]))
-    _fail_once(g, when_loop_pending=False)
+    _fail(g, batch_too=True, when_loop_pending=False)
     with pytest.raises(FilterError, match="ill-posed"):
         g.optimize()

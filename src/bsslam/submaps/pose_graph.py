@@ -137,7 +137,10 @@ class PoseGraph:
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(float(relinearize_threshold))
         params.relinearizeSkip = 1  # check every update: loop closures must converge promptly
+        self._isam_params = params
         self._isam = gtsam.ISAM2(params)
+        # every factor ever added: a batch re-solve starts from them (see optimize)
+        self._all_factors = gtsam.NonlinearFactorGraph()
         self._kernel = gtsam.noiseModel.mEstimator.Cauchy.Create(self.robust_kernel_width)
 
         # Pending input for the next optimize().
@@ -229,21 +232,45 @@ class PoseGraph:
         estimate. After a loop closure, iterate until no node needs relinearising (at most
         ``max_iterations`` extra iterations).
 
-        Returns the ids of the loop factors added since the last call that were dropped
-        because iSAM2 found the system ill-posed with them (usually none): the graph is
-        then rebuilt from its calls without them, and the ids of later loops shift down.
+        When iSAM2 finds the system ill-posed, the whole graph is solved in batch
+        (Levenberg–Marquardt) and iSAM2 restarted from it. Returns the ids of the loop
+        factors added since the last call that were dropped because even that failed with
+        them (usually none): the graph is then rebuilt from its calls without them, and
+        the ids of later loops shift down.
 
         Raises:
-            FilterError: iSAM2 found the system ill-posed without a new loop closure.
+            FilterError: the system is ill-posed without a new loop closure.
         """
         if self._new_factors.size() == 0 and self._new_values.size() == 0:
             return []
         self._calls.append(("optimize",))
+        for k in range(self._new_factors.size()):
+            self._all_factors.add(self._new_factors.at(k))
         try:
             self._update()
-        except RuntimeError as exc:   # gtsam's IndeterminateLinearSystemException
-            return self._drop_pending_loops(exc)
+        except RuntimeError:   # gtsam's IndeterminateLinearSystemException
+            # iSAM2 is Gauss–Newton on a partly relinearised system and can meet a
+            # numerically singular one where the problem itself is well posed (a known
+            # iSAM2 failure): solve the whole graph in batch with Levenberg–Marquardt,
+            # whose damping copes, and restart iSAM2 from that solution. Deterministic, so
+            # replaying the calls (unpickling) takes the same path.
+            try:
+                self._solve_in_batch()
+            except RuntimeError as exc:
+                return self._drop_pending_loops(exc)
         return []
+
+    def _solve_in_batch(self) -> None:
+        """Levenberg–Marquardt over every factor from the current estimate; iSAM2 restarted
+        with its result."""
+        result = gtsam.LevenbergMarquardtOptimizer(self._all_factors, self._values,
+                                                   gtsam.LevenbergMarquardtParams()).optimize()
+        self._isam = gtsam.ISAM2(self._isam_params)
+        self._isam.update(self._all_factors, result)
+        self._new_factors = gtsam.NonlinearFactorGraph()
+        self._new_values = gtsam.Values()
+        self._loop_pending = False
+        self._finish_update()
 
     def _drop_pending_loops(self, exc: RuntimeError) -> list[int]:
         """Rebuild the graph from its calls without the loop factors added since the last
@@ -272,6 +299,9 @@ class PoseGraph:
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
         self._loop_pending = False
+        self._finish_update()
+
+    def _finish_update(self) -> None:
         # calculateBestEstimate back-substitutes the whole tree (no wildfire cut-off):
         # exact for the current linearisation, O(n), cheap at a few hundred nodes.
         self._values = self._isam.calculateBestEstimate()
