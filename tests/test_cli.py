@@ -387,3 +387,24 @@ def test_the_input_limits_come_from_the_configuration(tmp_path):
         skipped[name] = summary["skipped_input_by_reason"]
     assert skipped["plain"] == {}
     assert sum(v for k, v in skipped["slow"].items() if "implausible" in k) >= 4
+
+
+def test_a_signal_whose_interrupt_was_swallowed_is_delivered_by_the_next_progress_step():
+    """A KeyboardInterrupt raised from the signal handler while numba compiles (inside a
+    ctypes callback) is printed and dropped by the interpreter; the run must still stop,
+    once, at its next progress step."""
+    import os
+    import signal
+
+    from bsslam.cli import progress_bar, signals_interrupt
+
+    with signals_interrupt(), progress_bar("run", 10, "scans") as update:
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            for _ in range(1000):   # the handler runs at the next bytecode boundary
+                pass
+        except KeyboardInterrupt:
+            pass                     # what a ctypes callback does with it
+        with pytest.raises(KeyboardInterrupt, match="SIGTERM"):
+            update(1)
+        update(2)                    # delivered once

@@ -96,6 +96,7 @@ def progress_bar(description: str, total: int | None, unit: str = "") -> Iterato
         task = bar.add_task(description, total=total, rate="")
 
         def update(done: int, total_: int | None = None) -> None:
+            _deliver_swallowed_signal()
             elapsed = bar.tasks[0].elapsed or 0.0
             rate = f"{done / elapsed:.1f} {unit}/s" if unit and elapsed > 0 else ""
             bar.update(task, completed=done, total=total_ if total_ is not None else total, rate=rate)
@@ -138,14 +139,29 @@ def signals_interrupt() -> Iterator[None]:
         return
 
     def interrupt(signum, frame):
-        raise KeyboardInterrupt(signal.Signals(signum).name)
+        name = signal.Signals(signum).name
+        _signalled.append(name)
+        raise KeyboardInterrupt(name)
 
     previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
     finally:
+        _signalled.clear()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+#: Signals the handler raised for. A KeyboardInterrupt raised while the interpreter is in
+#: a ctypes callback (numba compiling a kernel calls back into Python) is printed and
+#: dropped, so the run would go on; the progress callbacks deliver it again.
+_signalled: list[str] = []
+
+
+def _deliver_swallowed_signal() -> None:
+    """Raise the KeyboardInterrupt of a signal whose first raise went nowhere (once)."""
+    if _signalled:
+        raise KeyboardInterrupt(_signalled.pop())
 
 
 def interrupted(run_dir: Path | None, reason: str) -> None:
