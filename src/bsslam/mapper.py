@@ -536,7 +536,7 @@ def relocalize_submaps(slam: SubmapSLAM, records: list[_Record], config: SLAMCon
         # interrupt raised from the callback must come as soon as it is asked for.
         local, local_points = relocalize(slam.local_map(int(k)), replay, stamps, config, np.zeros(3),
                                          np.zeros((3, 3)), point_stride,
-                                         progress=lambda i, _, done=done: progress(done + max(i - skip, 0), n))
+                                         progress=lambda i, _: progress(done + max(i - skip, 0), n))
         if point_stride:
             local_points = local_points[skip:]
         base, base_cov = slam.base_of(int(k))

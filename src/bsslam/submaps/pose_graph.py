@@ -267,9 +267,6 @@ class PoseGraph:
                                                    gtsam.LevenbergMarquardtParams()).optimize()
         self._isam = gtsam.ISAM2(self._isam_params)
         self._isam.update(self._all_factors, result)
-        self._new_factors = gtsam.NonlinearFactorGraph()
-        self._new_values = gtsam.Values()
-        self._loop_pending = False
         self._finish_update()
 
     def _drop_pending_loops(self, exc: RuntimeError) -> list[int]:
@@ -296,12 +293,13 @@ class PoseGraph:
                 result = self._isam.update()
                 if result.getVariablesRelinearized() == 0:
                     break
-        self._new_factors = gtsam.NonlinearFactorGraph()
-        self._new_values = gtsam.Values()
-        self._loop_pending = False
         self._finish_update()
 
     def _finish_update(self) -> None:
+        """The pending input is in the solver: clear it and read the new estimate."""
+        self._new_factors = gtsam.NonlinearFactorGraph()
+        self._new_values = gtsam.Values()
+        self._loop_pending = False
         # calculateBestEstimate back-substitutes the whole tree (no wildfire cut-off):
         # exact for the current linearisation, O(n), cheap at a few hundred nodes.
         self._values = self._isam.calculateBestEstimate()
