@@ -555,8 +555,8 @@ def bench(
     except BsslamError as exc:
         fail(exc)
     # The log and its input variant are the row's key: never wrapped, whatever the terminal.
-    table = Table(Column("log", no_wrap=True), Column("input", no_wrap=True), "scans", "wall s", "ms/scan", "splines", "max state", "submaps", "loops",
-                  "peak RSS MB", "ATE m", "online ATE m", "odometry ATE m", "front end ATE m", "relations (Intel)",
+    table = Table(Column("log", no_wrap=True), Column("input", no_wrap=True), "scans", "wall s", "ms/scan",
+                  "splines", "max state", "submaps", "loops", "peak RSS MB", "ATE m", "online ATE m", "odometry ATE m", "front end ATE m", "relations (Intel)",
                   title=f"bsslam bench ({config.mode}, backend {config.backend})")
     for row in rows:
         if isinstance(row, BenchFailure):
