@@ -35,6 +35,7 @@ TYPE_ERRORS = [
     ("mapping:\n  fit_bias_sigmas: many\n", "mapping.fit_bias_sigmas", "a number or null"),
     ("segmentation:\n  no_return_m: [1]\n", "segmentation.no_return_m", "a number or null"),
     ("mode: mapping\n", "mode", "one of 'slam', 'localization'"),
+    ("submaps:\n  loop_outliers: huber\n", "submaps.loop_outliers", "one of 'cauchy', 'gnc'"),
     ("initial_pose_sigma: [0.1, 0.1]\n", "initial_pose_sigma", "a list of 3 values"),
     ("initial_pose_sigma: [0.1, x, 0.1]\n", "initial_pose_sigma[1]", "a number"),
 ]
@@ -66,6 +67,7 @@ RANGE_ERRORS = [
     ("frontend:\n  normal_neighbours: 100000\n", "frontend.normal_neighbours"),
     ("observation:\n  iterations: 1000000\n", "observation.iterations"),
     ("initial_pose_sigma: [1.0e9, 0, 0]\n", "initial_pose_sigma"),
+    ("submaps:\n  loop_inlier_probability: 1.0\n", "submaps.loop_inlier_probability"),
 ]
 
 

@@ -344,6 +344,7 @@ Mode = Literal["slam", "localization"]
 #: EKF (:mod:`bsslam.slam.oc_ekf`).
 EstimatorName = Literal["ekf", "oc-ekf"]
 BackendName = Literal["submaps", "ekf"]
+LoopOutliers = Literal["cauchy", "gnc"]
 
 
 @dataclass(frozen=True)
@@ -673,9 +674,22 @@ class SubmapConfig:
         loop_search_points: at most this many (evenly chosen) query points go into the
             correlative search; ``loop_refine_points`` into the refinement.
         loop_refine_points:
-        robust_kernel_width: width of the Cauchy kernel on loop-closure factors in
-            whitened units (σ): a loop closure this many σ from the graph's consensus is
-            down-weighted by half.
+        loop_outliers: how the pose graph guards against a wrong loop closure that passed
+            the checks above (one that looks right locally but that the rest of the graph
+            contradicts): ``cauchy`` (default) puts every loop closure behind a Cauchy
+            kernel in iSAM2, which down-weights it smoothly; ``gnc`` classifies every loop
+            closure afresh whenever one is added, by graduated non-convexity with a
+            truncated-least-squares loss, and sets the outliers aside. ``gnc`` escapes the
+            local minima in which several wrong loop closures pull a large graph their way
+            (the Freiburg campus with 1 mm of range noise: median ATE 0.50 against 4.35 m)
+            but chooses whole groups of loop closures, and in the simulated double loop it
+            kept a mutually consistent group 0.12 m off (final pose 0.10 m off, against
+            0.02 m with ``cauchy``), so it is not the default (README, Limits).
+        robust_kernel_width: (``cauchy``) width of the Cauchy kernel in whitened units (σ):
+            a loop closure this many σ from the graph's consensus is down-weighted by half.
+        loop_inlier_probability: (``gnc``) a loop closure is an inlier when its whitened
+            squared residual at the solution is within the χ²(3) quantile at this
+            probability.
     """
 
     max_state_size: int = 400
@@ -699,7 +713,9 @@ class SubmapConfig:
     loop_distinct_rad: float = math.radians(10.0)
     loop_search_points: int = 400
     loop_refine_points: int = 1500
+    loop_outliers: LoopOutliers = "cauchy"
     robust_kernel_width: float = 3.0
+    loop_inlier_probability: float = 0.99
 
     def __post_init__(self) -> None:
         _check(isinstance(self.max_state_size, int) and self.max_state_size >= 50,
@@ -728,7 +744,9 @@ class SubmapConfig:
         for name in ("loop_search_points", "loop_refine_points"):
             _check(isinstance(getattr(self, name), int) and 30 <= getattr(self, name) <= 100_000,
                    f"submaps.{name} must be an integer in [30, 100000]")
+        _check(self.loop_outliers in ("cauchy", "gnc"), "submaps.loop_outliers must be 'cauchy' or 'gnc'")
         _check(self.robust_kernel_width > 0, "submaps.robust_kernel_width must be > 0")
+        _check(0 < self.loop_inlier_probability < 1, "submaps.loop_inlier_probability must be in (0, 1)")
 
 
 @dataclass(frozen=True)

@@ -559,7 +559,7 @@ def _transform_points(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def _add_submap_stats(totals: dict[str, int], slam: SubmapSLAM) -> None:
     """The global layer's counters: submaps, loop-closure candidates, accepted and
-    down-weighted loop closures, rejections by reason."""
+    loop closures the graph down-weighted below ½ or set aside, rejections by reason."""
     stats = slam.stats
     totals["submaps"] = len(slam.frozen) + (1 if slam.local.steps > slam._seed_steps else 0)
     totals["loop_candidates"] = stats.loop_candidates

@@ -145,3 +145,9 @@ def test_surfaces_join_the_same_wall_of_two_submaps_only():
         # on purpose); here spline 3 joins through spline 1 of the other submap
         assert s[3].surface == 0
         assert mark_surfaces(splines[:1] + splines[2:3], spacing)[1].surface == 1
+
+
+def test_the_configured_guard_against_wrong_loop_closures_reaches_the_graph():
+    slam = SubmapSLAM(_config(loop_outliers="gnc", loop_inlier_probability=0.95))
+    assert slam.graph.loop_outliers == "gnc" and slam.graph.loop_inlier_probability == 0.95
+    assert SubmapSLAM(_config(robust_kernel_width=2.0)).graph.robust_kernel_width == 2.0

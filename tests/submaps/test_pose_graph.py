@@ -402,3 +402,126 @@ def test_an_ill_posed_graph_without_a_new_loop_closure_is_a_filter_error():
     _fail(g, batch_too=True, when_loop_pending=False)
     with pytest.raises(FilterError, match="ill-posed"):
         g.optimize()
+
+
+# --- 5. graduated non-convexity (loop_outliers="gnc") ----------------------------------------
+
+#: χ²(3) at 99 %: the default classification's threshold on a loop's whitened squared residual
+CHI2_3_99 = 11.345
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_gnc_keeps_true_loops_and_reaches_the_least_squares_optimum(seed):
+    """True loop closures (noise drawn from their covariance) are inliers, and the solution
+    is the Gaussian least-squares optimum."""
+    problem = make_problem(seed)
+    expected = solve_oracle(problem, WIDE)
+    errors = loop_norms(expected, problem)
+    assert np.all(errors ** 2 < CHI2_3_99)           # the scenario: both loops are inliers
+    graph = build(problem, WIDE, loop_outliers="gnc")
+    np.testing.assert_array_equal(graph.loop_weights(), [1.0, 1.0])
+    assert_poses_close(graph.poses(), expected.reshape(-1, 3), atol=1e-6)
+    np.testing.assert_allclose(graph.loop_errors(), errors, rtol=1e-4, atol=1e-6)
+
+
+def gnc_square_graph(problem: dict, with_false: str | None, loop_outliers: str | None = "gnc") -> PoseGraph:
+    graph = PoseGraph(np.zeros(3), loop_outliers=loop_outliers)
+    for u in problem["odometry"]:
+        graph.add_node(u, problem["odo_cov"])
+    if with_false == "first":
+        graph.add_loop(*problem["false"], problem["loop_cov"])
+        graph.optimize()
+    for loop in problem["loops"]:
+        graph.add_loop(*loop, problem["loop_cov"])
+    if with_false == "together":
+        graph.add_loop(*problem["false"], problem["loop_cov"])
+    graph.optimize()
+    if with_false == "last":
+        graph.add_loop(*problem["false"], problem["loop_cov"])
+        graph.optimize()
+    return graph
+
+
+@pytest.mark.parametrize("when", ["first", "together", "last"])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_gnc_sets_a_false_loop_aside(seed, when):
+    problem = square_problem(seed)
+    clean = gnc_square_graph(problem, None, None)
+    graph = gnc_square_graph(problem, when)
+    false_id = 0 if when == "first" else 3
+    assert graph.loops[false_id] == (3, 10)
+    # set aside whether it came before the true ones (it then bent the graph alone), with
+    # them or after them; the true ones are kept, and the solution is the one without it
+    np.testing.assert_array_equal(graph.loop_weights(), np.where(np.arange(4) == false_id, 0.0, 1.0))
+    assert_poses_close(graph.poses(), clean.poses(), atol=1e-6)
+    # Taken as an inlier, the false loop wrecks the map: the classification is what saves it.
+    gaussian = gnc_square_graph(problem, when, None)
+    assert np.abs(gaussian.poses()[:, :2] - clean.poses()[:, :2]).max() > 0.3
+
+
+def test_gnc_takes_back_a_loop_set_aside_once_the_graph_agrees_with_it():
+    """Odometry turning 0.01 rad a step more than it says (drift beyond its covariance):
+    the first true loop closure contradicts it and is set aside; a second one that agrees
+    with the first brings both in, and the third joins them."""
+    problem = square_problem(0)
+    graph = PoseGraph(np.zeros(3), loop_outliers="gnc")
+    for u in problem["odometry"]:
+        graph.add_node(se2.compose(u, np.array([0.0, 0.0, 0.01])), problem["odo_cov"])
+    graph.optimize()
+    weights = []
+    for loop in problem["loops"]:
+        graph.add_loop(*loop, problem["loop_cov"])
+        graph.optimize()
+        weights.append(graph.loop_weights().tolist())
+    assert weights == [[0.0], [1.0, 1.0], [1.0, 1.0, 1.0]]
+    assert np.all(graph.loop_errors() ** 2 < CHI2_3_99)
+
+
+@pytest.mark.parametrize("seed", [0, 5])
+def test_gnc_incremental_equals_batch(seed):
+    problem = make_problem(seed, n=8, loops=((0, 4), (1, 7), (2, 6)))
+    batch = build(problem, WIDE, loop_outliers="gnc", relinearize_threshold=1e-6)
+    incremental = build(problem, WIDE, incremental=True, loop_outliers="gnc", relinearize_threshold=1e-6)
+    assert_poses_close(incremental.poses(), batch.poses(), atol=1e-6)
+    order = [incremental.loops.index(pair) for pair in batch.loops]
+    np.testing.assert_array_equal(incremental.loop_weights()[order], batch.loop_weights())
+    for i in range(problem["n"]):
+        assert_covariance_close(incremental.covariance(i), batch.covariance(i), 1e-4)
+
+
+def test_gnc_graph_pickles_to_the_same_numbers():
+    problem = square_problem(1)
+    graph = gnc_square_graph(problem, "together")
+    back = pickle.loads(pickle.dumps(graph))
+    np.testing.assert_array_equal(back.poses(), graph.poses())
+    np.testing.assert_array_equal(back.loop_weights(), graph.loop_weights())
+    np.testing.assert_array_equal(back.covariance(7), graph.covariance(7))
+
+
+def test_an_ill_posed_gnc_update_is_solved_in_batch_with_the_same_classification():
+    """iSAM2 failing after a classification: the batch re-solve classifies the same way
+    (the true first loop is kept, the wildly wrong second one set aside) and reaches the
+    same optimum."""
+    def with_two_loops(fail=None):
+        g = PoseGraph(np.zeros(3), loop_outliers="gnc")
+        for _ in range(3):
+            g.add_node(np.array([2.0, 0.0, np.pi / 2]), np.diag([1e-4, 1e-4, 1e-5]))
+        g.optimize()
+        g.add_loop(0, 3, np.array([0.0, 2.0, -np.pi / 2]), np.diag([1e-3, 1e-3, 1e-4]))   # true
+        g.optimize()
+        g.add_node(np.array([1.0, 0.0, 0.0]), np.diag([1e-4, 1e-4, 1e-5]))
+        g.add_loop(1, 4, np.array([0.0, 1.0, 0.0]), np.diag([1e-3, 1e-3, 1e-4]))
+        failed = fail(g) if fail else None
+        return g, g.optimize(), failed
+    g, dropped, failed = with_two_loops(lambda g: _fail(g, batch_too=False))
+    ref, _, _ = with_two_loops()
+    assert dropped == [] and failed == ["isam2"]
+    np.testing.assert_array_equal(g.loop_weights(), [1.0, 0.0])
+    np.testing.assert_array_equal(ref.loop_weights(), [1.0, 0.0])
+    assert_poses_close(g.poses(), ref.poses(), atol=1e-6)
+
+
+def test_invalid_guard_settings_are_rejected():
+    for kwargs in ({"loop_outliers": "huber"}, {"robust_kernel_width": 0.0}, {"loop_inlier_probability": 1.0}):
+        with pytest.raises(ValueError):
+            PoseGraph(np.zeros(3), **kwargs)

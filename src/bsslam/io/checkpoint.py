@@ -38,7 +38,7 @@ from bsslam.io.atomic_file import TEMP_SUFFIX, atomic_write
 
 CHECKPOINT_FILE = "checkpoint.pkl"
 #: Bumped whenever the header or the state's layout changes: an older checkpoint is refused.
-FORMAT = 1
+FORMAT = 2   # 2: the pose graph pickles its arguments by name (loop_outliers)
 _MAGIC = "bsslam-checkpoint"
 
 

@@ -19,8 +19,9 @@ again beside themselves. Here:
 - **Loop closure.** A newly frozen submap is matched against the old submaps whose area it
   may overlap given the graph's uncertainty (:func:`~bsslam.submaps.loop_closure.match_submaps`:
   a wide correlative search on the old submap's spline points, then verification); every
-  accepted match is a robust (Cauchy) factor, so a wrong one the rest of the graph
-  disagrees with is down-weighted.
+  accepted match goes into the graph, which down-weights (a Cauchy kernel, by default) or
+  sets aside (graduated non-convexity, ``submaps.loop_outliers: gnc``) the ones the rest
+  of the graph contradicts (see :mod:`~bsslam.submaps.pose_graph`).
 - **One map out.** Each submap's splines in its optimised frame; splines that lie on one
   another in two submaps are marked as one surface (:func:`mark_surfaces`).
 
@@ -88,7 +89,7 @@ class LoopRecord:
         reference, query: the submaps (graph nodes); ``relative`` (3,) is the query's base
             in the reference's frame, ``covariance`` (3, 3) its covariance.
         inlier_fraction, overlap_m: the match's verification figures.
-        loop_id: the factor's id in the graph (its robust weight: ``PoseGraph.loop_weights``).
+        loop_id: the factor's id in the graph (its weight in the solution: ``PoseGraph.loop_weights``).
     """
 
     reference: int
@@ -131,8 +132,10 @@ class SubmapSLAM:
         if initial_covariance is None:
             initial_covariance = np.diag(np.square(self.config.initial_pose_sigma))
         anchor = np.asarray(initial_covariance, dtype=float) + np.eye(3) * _ANCHOR_SIGMA ** 2
-        self.graph = PoseGraph(np.asarray(initial_pose, dtype=float), anchor,
-                               robust_kernel_width=self.config.submaps.robust_kernel_width)
+        cfg = self.config.submaps
+        self.graph = PoseGraph(np.asarray(initial_pose, dtype=float), anchor, loop_outliers=cfg.loop_outliers,
+                               robust_kernel_width=cfg.robust_kernel_width,
+                               loop_inlier_probability=cfg.loop_inlier_probability)
         self.graph.optimize()
         self.frozen: list[FrozenSubmap] = []
         self._frozen_bytes = 0
@@ -334,7 +337,8 @@ class SubmapSLAM:
         return out
 
     def loop_weights(self) -> np.ndarray:
-        """(loops,) the robust kernel's weight of each accepted loop closure at the solution."""
+        """(loops,) the weight of each accepted loop closure in the graph's solution (the
+        Cauchy kernel's, or 1 / 0 for an inlier / outlier of the GNC classification)."""
         return self.graph.loop_weights() if self.loops else np.empty(0)
 
 
