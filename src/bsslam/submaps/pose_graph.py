@@ -64,6 +64,7 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
+from scipy.stats import chi2
 
 from bsslam.errors import FilterError
 
@@ -260,7 +261,9 @@ class PoseGraph:
         gaussian = gtsam.noiseModel.Gaussian.Covariance(_to_tangent(covariance, relative[2]))
         z = gtsam.Pose2(*relative)
         self._loop_factors.append(gtsam.BetweenFactorPose2(i, j, z, gaussian))
-        if self.loop_outliers != "gnc":   # a classification rebuilds the solver instead
+        if self.loop_outliers == "gnc":   # an inlier until a classification says otherwise
+            self._new_factors.add(self._loop_factors[-1])
+        else:
             noise = gaussian if self.loop_outliers is None else gtsam.noiseModel.Robust.Create(self._kernel, gaussian)
             self._robust_loops.append(gtsam.BetweenFactorPose2(i, j, z, noise))
             self._new_factors.add(self._robust_loops[-1])
@@ -332,18 +335,35 @@ class PoseGraph:
         return result
 
     def _update(self) -> None:
-        if self._loop_pending and self.loop_outliers == "gnc":
-            values = self._classify_loops()
-            self._isam = gtsam.ISAM2(self._isam_params)
-            self._isam.update(self._solved_graph(), values)
-        else:
-            self._isam.update(self._new_factors, self._new_values)
+        self._isam.update(self._new_factors, self._new_values)
         if self._loop_pending:
-            for _ in range(self._max_iterations):
-                result = self._isam.update()
-                if result.getVariablesRelinearized() == 0:
-                    break
+            self._iterate()
+            if self.loop_outliers == "gnc" and not self._classification_holds():
+                values = self._classify_loops()
+                self._isam = gtsam.ISAM2(self._isam_params)
+                self._isam.update(self._solved_graph(), values)
+                self._iterate()
         self._finish_update()
+
+    def _iterate(self) -> None:
+        """Extra iSAM2 iterations until no node needs relinearising (a loop closure moves
+        the graph by more than one Gauss–Newton step)."""
+        for _ in range(self._max_iterations):
+            if self._isam.update().getVariablesRelinearized() == 0:
+                break
+
+    def _classification_holds(self) -> bool:
+        """With the new loop closures taken as inliers, is every inlier still within the
+        threshold and every outlier beyond it? Then the classification is a fixed point of
+        the truncated least squares (its solution is the least-squares one of its inliers
+        and agrees with them) and the whole-graph classification is not needed: most new
+        loop closures agree with the graph, and a classification costs a few hundred
+        Levenberg–Marquardt solves of the whole graph."""
+        values = self._isam.calculateBestEstimate()
+        errors = np.array([float(np.sum(np.square(f.noiseModel().whiten(f.unwhitenedError(values)))))
+                           for f in self._loop_factors])
+        within = errors <= chi2.ppf(self.loop_inlier_probability, 3)
+        return bool(np.array_equal(within, self._loop_inlier))
 
     def _solve_in_batch(self) -> None:
         """Levenberg–Marquardt over every factor solved (see :meth:`_solved_graph`; with
