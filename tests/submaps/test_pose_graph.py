@@ -527,3 +527,20 @@ def test_invalid_guard_settings_are_rejected():
     for kwargs in ({"loop_outliers": "huber"}, {"robust_kernel_width": 0.0}, {"loop_inlier_probability": 1.0}):
         with pytest.raises(ValueError):
             PoseGraph(np.zeros(3), **kwargs)
+
+
+def test_a_long_badly_conditioned_chain_is_solved():
+    """200 submaps without a loop closure, each edge's lateral σ 0.1 mm and heading σ
+    0.1 rad: iSAM2's Cholesky called this indeterminate at the third node (the campus's
+    chain alone at its 94th); the heading marginal of the last node is exactly √200 × 0.1
+    rad (headings add along a chain) and the poses are the chain's composition."""
+    rng = np.random.default_rng(0)
+    graph = PoseGraph(np.zeros(3))
+    pose = np.zeros(3)
+    for _ in range(200):
+        step = np.array([4.0, 0.0, rng.uniform(-0.5, 0.5)])
+        graph.add_node(step, np.diag([0.05 ** 2, 1e-4 ** 2, 0.1 ** 2]))
+        pose = se2.compose(pose, step)
+        assert graph.optimize() == []
+    np.testing.assert_allclose(np.sqrt(graph.covariance(200)[2, 2]), np.sqrt(200) * 0.1, rtol=1e-6)
+    assert_poses_close(graph.poses()[-1:], pose[None, :], atol=1e-6)

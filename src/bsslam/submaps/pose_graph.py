@@ -174,6 +174,12 @@ class PoseGraph:
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(float(relinearize_threshold))
         params.relinearizeSkip = 1  # check every update: loop closures must converge promptly
+        # QR, not the default Cholesky: a chain of submaps without loop closures is badly
+        # conditioned (a base known to 1e-6 m next to one uncertain by 100 m, an edge whose
+        # lateral σ is 0.1 mm while its heading's is 0.1 rad), and iSAM2's Cholesky calls
+        # such a system indeterminate within a few nodes (the campus's chain alone failed
+        # at its 94th submap). The graphs have hundreds of nodes: the cost is small.
+        params.setFactorization("QR")
         self._isam_params = params
         self._isam = gtsam.ISAM2(params)
         self._kernel = gtsam.noiseModel.mEstimator.Cauchy.Create(self.robust_kernel_width)
