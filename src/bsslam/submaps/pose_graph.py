@@ -23,18 +23,20 @@ solved incrementally by GTSAM's iSAM2.
   stands: once several wrong loop closures pull a large graph their way, the right ones
   look wrong in turn (a local minimum).
 
-  ``gnc``: whenever loop closures are added, every loop factor so far is classified
-  afresh by graduated non-convexity (GTSAM's ``GncLMOptimizer``, Yang et al. 2020) with a
+  ``gnc``: new loop closures are first taken as inliers. When that leaves an inlier whose
+  whitened squared residual is beyond the χ²(3) quantile at ``loop_inlier_probability``,
+  or an outlier within it, every loop factor so far is classified afresh by graduated
+  non-convexity (GTSAM's ``GncLMOptimizer``, Yang et al. 2020) with a
   truncated-least-squares loss, starting from the convex least-squares problem: the
-  odometry factors are known inliers; a loop factor whose whitened squared residual at
-  the solution is beyond the χ²(3) quantile at ``loop_inlier_probability`` is an outlier
-  and leaves the solve (weight 0), the others stay as plain Gaussian factors (weight 1).
-  A loop set aside is reconsidered at every later classification. On the Freiburg
-  campus's graphs (1 mm perturbed ranges, 316–327 loop closures of which 25–30 are off by
-  0.3–10 m) the Cauchy kernel left base-pose errors of 2.7 and 6.1 m, no better than no
-  loop closure at all, and GNC 0.64 and 0.85 m (0.47 and 0.74 m with only the right loop
-  closures, known from the reference). It picks whole consistent groups, though, and a
-  wrong group can win (see the configuration's ``loop_outliers``).
+  odometry factors are known inliers; a loop factor beyond the threshold at the solution
+  is an outlier and leaves the solve (weight 0), the others stay as plain Gaussian
+  factors (weight 1). A loop set aside is reconsidered at every later classification. On
+  the Freiburg campus's graph with 1 mm perturbed ranges (seed 1: 326 loop closures, 27
+  of them off by 0.3–10 m; ``benchmarks/replay_pose_graph.py``) the Cauchy kernel leaves
+  the bases 6.13 m off, no better than no loop closure at all (6.18 m), and GNC 0.87 m
+  (0.72 m with only the right loop closures, known from the reference). It picks whole
+  consistent groups, though, and a wrong group can win (see the configuration's
+  ``loop_outliers``).
 
 Covariances at the interface are bsslam's: covariances of pose *coordinates*
 (x, y, φ) in the parent frame. GTSAM's are of its right tangent perturbation
@@ -44,12 +46,12 @@ the rotation of the translation part, ``Σ_bsslam = B Σ_gtsam Bᵀ`` with
 the conversion happens here and nowhere else.
 
 iSAM2 keeps the factorisation of the graph and updates only the part of its Bayes tree
-that new factors touch, so an odometry update costs roughly a constant. A GNC classification
-solves the whole graph in batch (a few tens of Levenberg–Marquardt solves of a few hundred
-nodes) and restarts iSAM2 from its solution with the inlier loops; it runs once per
-submap that closed a loop. With the Cauchy kernel a loop closure re-eliminates the
-loop's span and is followed by a few extra iterations so that the relinearisation (and
-the robust weights, which are recomputed at relinearisation) converges.
+that new factors touch, so an odometry update costs roughly a constant. A loop closure
+re-eliminates the loop's span and is followed by a few extra iterations so that the
+relinearisation (and the Cauchy kernel's weights, which are recomputed at
+relinearisation) converges. A GNC classification solves the whole graph in batch (many
+Levenberg–Marquardt solves of a few hundred nodes) and restarts iSAM2 from its solution
+with the inlier loops; it runs only when new loop closures break the classification.
 
 iSAM2's objects do not pickle. A :class:`PoseGraph` pickles as the calls that built it
 (its arguments, then every :meth:`add_node`, :meth:`add_loop`, :meth:`optimize` and
@@ -312,24 +314,24 @@ class PoseGraph:
                 return self._drop_pending_loops(exc)
         return []
 
-    def _solved_graph(self) -> gtsam.NonlinearFactorGraph:
-        """The factors the solution minimises: the prior, the odometry factors and the loop
-        factors (robust ones; with ``gnc`` the Gaussian ones classified as inliers)."""
+    def _chain_with(self, loops) -> gtsam.NonlinearFactorGraph:
+        """The prior and the odometry factors, then ``loops``."""
         graph = gtsam.NonlinearFactorGraph(self._chain_factors)
-        if self.loop_outliers == "gnc":
-            loops = [f for f, inlier in zip(self._loop_factors, self._loop_inlier) if inlier]
-        else:
-            loops = self._robust_loops
         for factor in loops:
             graph.add(factor)
         return graph
 
+    def _solved_graph(self) -> gtsam.NonlinearFactorGraph:
+        """The factors the solution minimises: the prior, the odometry factors and the loop
+        factors (robust ones; with ``gnc`` the Gaussian ones classified as inliers)."""
+        if self.loop_outliers == "gnc":
+            return self._chain_with(f for f, inlier in zip(self._loop_factors, self._loop_inlier) if inlier)
+        return self._chain_with(self._robust_loops)
+
     def _classify_loops(self) -> gtsam.Values:
         """Graduated non-convexity (truncated least squares) over the whole graph from the
         current estimate; sets which loop factors are inliers and returns the solution."""
-        graph = gtsam.NonlinearFactorGraph(self._chain_factors)
-        for factor in self._loop_factors:
-            graph.add(factor)
+        graph = self._chain_with(self._loop_factors)
         params = gtsam.GncLMParams()
         params.setLossType(gtsam.GncLossType.TLS)
         params.setKnownInliers(list(range(self._chain_factors.size())))
@@ -365,10 +367,8 @@ class PoseGraph:
         and agrees with them) and the whole-graph classification is not needed: most new
         loop closures agree with the graph, and a classification costs a few hundred
         Levenberg–Marquardt solves of the whole graph."""
-        values = self._isam.calculateBestEstimate()
-        errors = np.array([float(np.sum(np.square(f.noiseModel().whiten(f.unwhitenedError(values)))))
-                           for f in self._loop_factors])
-        within = errors <= chi2.ppf(self.loop_inlier_probability, 3)
+        errors = self._loop_errors_at(self._isam.calculateBestEstimate())
+        within = errors ** 2 <= chi2.ppf(self.loop_inlier_probability, 3)
         return bool(np.array_equal(within, self._loop_inlier))
 
     def _solve_in_batch(self) -> None:
@@ -480,7 +480,10 @@ class PoseGraph:
     def loop_errors(self) -> np.ndarray:
         """Whitened residual norm (loops,) of each loop factor at the current estimate,
         under its Gaussian model (σ units), inliers and outliers alike."""
-        return np.array([np.linalg.norm(f.noiseModel().whiten(f.unwhitenedError(self._values)))
+        return self._loop_errors_at(self._values)
+
+    def _loop_errors_at(self, values: gtsam.Values) -> np.ndarray:
+        return np.array([np.linalg.norm(f.noiseModel().whiten(f.unwhitenedError(values)))
                          for f in self._loop_factors], dtype=float)
 
     def loop_weights(self) -> np.ndarray:
