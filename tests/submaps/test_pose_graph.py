@@ -179,8 +179,10 @@ def square_problem(seed: int) -> dict:
             "false": false}
 
 
-def square_graph(problem: dict, kernel: float, with_false: str | None) -> PoseGraph:
-    graph = PoseGraph(np.zeros(3), robust_kernel_width=kernel)
+def square_graph(problem: dict, with_false: str | None, **graph_args) -> PoseGraph:
+    """The square's graph (``graph_args`` for :class:`PoseGraph`), its false loop closure
+    added first, together with the true ones, last, or not at all (None)."""
+    graph = PoseGraph(np.zeros(3), **graph_args)
     for u in problem["odometry"]:
         graph.add_node(u, problem["odo_cov"])
     if with_false == "first":
@@ -201,8 +203,8 @@ def square_graph(problem: dict, kernel: float, with_false: str | None) -> PoseGr
 @pytest.mark.parametrize("seed", [0, 1])
 def test_false_loop_is_down_weighted(seed, when):
     problem = square_problem(seed)
-    clean = square_graph(problem, 3.0, None)
-    graph = square_graph(problem, 3.0, when)
+    clean = square_graph(problem, None, robust_kernel_width=3.0)
+    graph = square_graph(problem, when, robust_kernel_width=3.0)
     false_id = 0 if when == "first" else 3
     weights = graph.loop_weights()
     assert weights[false_id] < 0.1
@@ -210,7 +212,7 @@ def test_false_loop_is_down_weighted(seed, when):
     assert graph.loops[false_id] == (3, 10)
     assert_poses_close(graph.poses(), clean.poses(), atol=0.03)
     # Without the kernel the false loop wrecks the map: the kernel is what saves it.
-    gaussian = square_graph(problem, WIDE, when)
+    gaussian = square_graph(problem, when, robust_kernel_width=WIDE)
     assert np.abs(gaussian.poses()[:, :2] - clean.poses()[:, :2]).max() > 0.3
 
 
@@ -324,9 +326,9 @@ def test_invalid_input_is_rejected(call):
         call(graph)
 
 
-def _square_graph() -> PoseGraph:
+def _square_graph(**graph_args) -> PoseGraph:
     """Four nodes around a 2 m square, optimised, no loop closure yet."""
-    g = PoseGraph(np.zeros(3))
+    g = PoseGraph(np.zeros(3), **graph_args)
     for _ in range(3):
         g.add_node(np.array([2.0, 0.0, np.pi / 2]), np.diag([1e-4, 1e-4, 1e-5]))
     g.optimize()
@@ -354,9 +356,12 @@ def _fail(graph: PoseGraph, *, batch_too: bool, when_loop_pending: bool = True) 
     return failed
 
 
-def _with_two_loops(fail=None) -> tuple[PoseGraph, list[int]]:
-    g = _square_graph()
-    g.add_loop(0, 3, np.array([0.0, -2.0, -np.pi / 2]), np.diag([1e-3, 1e-3, 1e-4]))
+def _with_two_loops(fail=None, first=np.array([0.0, -2.0, -np.pi / 2]),
+                    **graph_args) -> tuple[PoseGraph, list[int]]:
+    """The square with a loop closure ``first`` (node 3 seen from node 0) optimised, then a
+    node and a second loop closure (1, 4) that ``fail`` may make the next update fail on."""
+    g = _square_graph(**graph_args)
+    g.add_loop(0, 3, first, np.diag([1e-3, 1e-3, 1e-4]))
     g.optimize()
     g.add_node(np.array([1.0, 0.0, 0.0]), np.diag([1e-4, 1e-4, 1e-5]))
     g.add_loop(1, 4, np.array([0.0, 1.0, 0.0]), np.diag([1e-3, 1e-3, 1e-4]))
@@ -424,30 +429,12 @@ def test_gnc_keeps_true_loops_and_reaches_the_least_squares_optimum(seed):
     np.testing.assert_allclose(graph.loop_errors(), errors, rtol=1e-4, atol=1e-6)
 
 
-def gnc_square_graph(problem: dict, with_false: str | None, loop_outliers: str | None = "gnc") -> PoseGraph:
-    graph = PoseGraph(np.zeros(3), loop_outliers=loop_outliers)
-    for u in problem["odometry"]:
-        graph.add_node(u, problem["odo_cov"])
-    if with_false == "first":
-        graph.add_loop(*problem["false"], problem["loop_cov"])
-        graph.optimize()
-    for loop in problem["loops"]:
-        graph.add_loop(*loop, problem["loop_cov"])
-    if with_false == "together":
-        graph.add_loop(*problem["false"], problem["loop_cov"])
-    graph.optimize()
-    if with_false == "last":
-        graph.add_loop(*problem["false"], problem["loop_cov"])
-        graph.optimize()
-    return graph
-
-
 @pytest.mark.parametrize("when", ["first", "together", "last"])
 @pytest.mark.parametrize("seed", [0, 1])
 def test_gnc_sets_a_false_loop_aside(seed, when):
     problem = square_problem(seed)
-    clean = gnc_square_graph(problem, None, None)
-    graph = gnc_square_graph(problem, when)
+    clean = square_graph(problem, None, loop_outliers=None)
+    graph = square_graph(problem, when, loop_outliers="gnc")
     false_id = 0 if when == "first" else 3
     assert graph.loops[false_id] == (3, 10)
     # set aside whether it came before the true ones (it then bent the graph alone), with
@@ -455,7 +442,7 @@ def test_gnc_sets_a_false_loop_aside(seed, when):
     np.testing.assert_array_equal(graph.loop_weights(), np.where(np.arange(4) == false_id, 0.0, 1.0))
     assert_poses_close(graph.poses(), clean.poses(), atol=1e-6)
     # Taken as an inlier, the false loop wrecks the map: the classification is what saves it.
-    gaussian = gnc_square_graph(problem, when, None)
+    gaussian = square_graph(problem, when, loop_outliers=None)
     assert np.abs(gaussian.poses()[:, :2] - clean.poses()[:, :2]).max() > 0.3
 
 
@@ -493,7 +480,7 @@ def test_gnc_incremental_equals_batch(seed):
 
 def test_gnc_graph_pickles_to_the_same_numbers():
     problem = square_problem(1)
-    graph = gnc_square_graph(problem, "together")
+    graph = square_graph(problem, "together", loop_outliers="gnc")
     back = pickle.loads(pickle.dumps(graph))
     np.testing.assert_array_equal(back.poses(), graph.poses())
     np.testing.assert_array_equal(back.loop_weights(), graph.loop_weights())
@@ -504,19 +491,9 @@ def test_an_ill_posed_gnc_update_is_solved_in_batch_with_the_same_classification
     """iSAM2 failing after a classification: the batch re-solve classifies the same way
     (the true first loop is kept, the wildly wrong second one set aside) and reaches the
     same optimum."""
-    def with_two_loops(fail=None):
-        g = PoseGraph(np.zeros(3), loop_outliers="gnc")
-        for _ in range(3):
-            g.add_node(np.array([2.0, 0.0, np.pi / 2]), np.diag([1e-4, 1e-4, 1e-5]))
-        g.optimize()
-        g.add_loop(0, 3, np.array([0.0, 2.0, -np.pi / 2]), np.diag([1e-3, 1e-3, 1e-4]))   # true
-        g.optimize()
-        g.add_node(np.array([1.0, 0.0, 0.0]), np.diag([1e-4, 1e-4, 1e-5]))
-        g.add_loop(1, 4, np.array([0.0, 1.0, 0.0]), np.diag([1e-3, 1e-3, 1e-4]))
-        failed = fail(g) if fail else None
-        return g, g.optimize(), failed
-    g, dropped, failed = with_two_loops(lambda g: _fail(g, batch_too=False))
-    ref, _, _ = with_two_loops()
+    true_first = np.array([0.0, 2.0, -np.pi / 2])
+    g, dropped, failed = _with_two_loops(lambda g: _fail(g, batch_too=False), true_first, loop_outliers="gnc")
+    ref, _, _ = _with_two_loops(None, true_first, loop_outliers="gnc")
     assert dropped == [] and failed == ["isam2"]
     np.testing.assert_array_equal(g.loop_weights(), [1.0, 0.0])
     np.testing.assert_array_equal(ref.loop_weights(), [1.0, 0.0])
