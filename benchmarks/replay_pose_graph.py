@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from bsslam.config import SLAMConfig
+from bsslam.eval.alignment import align_rigid_2d
 from bsslam.eval.association import nearest_stamps
 from bsslam.io import open_dataset
 from bsslam.io.trajectory_file import read_trajectory
@@ -32,6 +33,7 @@ from bsslam.pipeline import run_dataset
 from bsslam.se2 import between
 from bsslam.submaps.backend import _proper
 from bsslam.submaps.pose_graph import PoseGraph
+from bsslam.trajectory import wrap_angle
 
 #: A loop closure is wrong when its translation error + this × its heading error (m, rad)
 #: exceeds WRONG_M.
@@ -41,11 +43,8 @@ WRONG_M = 0.3
 
 def rigid_ate(estimate: np.ndarray, reference: np.ndarray) -> float:
     """RMS position error (m) of (n, 2) points after the best rigid 2D alignment."""
-    a, b = estimate - estimate.mean(0), reference - reference.mean(0)
-    u, _, vt = np.linalg.svd(a.T @ b)
-    d = np.diag([1.0, np.sign(np.linalg.det(vt.T @ u.T))])
-    rotation = vt.T @ d @ u.T
-    return float(np.sqrt(np.mean(np.sum((a @ rotation.T - b) ** 2, axis=1))))
+    rotation, translation = align_rigid_2d(estimate, reference)
+    return float(np.sqrt(np.mean(np.sum((estimate @ rotation.T + translation - reference) ** 2, axis=1))))
 
 
 def solve(edges, loops, guard: str | None) -> tuple[PoseGraph, float]:
@@ -96,7 +95,7 @@ def main() -> None:
         for m, loop in enumerate(loops):
             if known[loop.reference] and known[loop.query]:
                 e = loop.relative - between(truth[loop.reference], truth[loop.query])
-                e[2] = np.remainder(e[2] + np.pi, 2 * np.pi) - np.pi
+                e[2] = wrap_angle(e[2])
                 wrong[m] = np.hypot(e[0], e[1]) + HEADING_WEIGHT_M * abs(e[2]) > WRONG_M
         print(f"  wrong loop closures against the reference: {int(wrong.sum())}")
 
