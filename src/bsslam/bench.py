@@ -6,6 +6,7 @@ A benchmark, not a test: it prints figures (``bsslam bench``); nothing asserts o
 
 from __future__ import annotations
 
+import math
 import resource
 import time
 from dataclasses import dataclass
@@ -18,6 +19,7 @@ import numpy as np
 from bsslam.config import SLAMConfig
 from bsslam.errors import BsslamError
 from bsslam.eval import ate, relations_error
+from bsslam.eval.pose_nees import pose_nees
 from bsslam.io import open_dataset
 from bsslam.io.reader_config import ReaderConfig
 from bsslam.io.trajectory_file import read_trajectory
@@ -27,6 +29,10 @@ from bsslam.pipeline import run_dataset
 
 #: The Intel relations file counts time from the Unix epoch; our Intel logs from the start.
 INTEL_RELATIONS_OFFSET_S = 976052857.337
+
+#: The shared references' own uncertainty (m, rad) that the NEES adds: a scan-matched
+#: reference is good to a few centimetres and half a degree (``../shared/data/README.md``).
+REFERENCE_SIGMA = (0.03, math.radians(0.5))
 
 
 @dataclass(frozen=True)
@@ -54,6 +60,11 @@ class BenchRow:
     loop_closures: int = 0
     #: why the run stopped early (the memory budget), or "" when it ran to the end
     stopped: str = ""
+    #: the online trajectory's pose NEES against the reference with the reference's own
+    #: σ (:data:`REFERENCE_SIGMA`) added: the share of poses outside the 95 % χ²(3) region
+    #: (0.05 if consistent) and the median (2.37 if consistent); NaN without a reference
+    nees_outside_95: float = float("nan")
+    nees_median: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -132,11 +143,15 @@ def bench_log(log: Path, config: SLAMConfig, steps: int | None = None, progress=
     wall = time.perf_counter() - t0
     ref_path = log.with_suffix(".gt.txt")
     nan = float("nan")
-    ate_m = online_m = odo_m = fe_m = nan
+    ate_m = online_m = odo_m = fe_m = outside = median = nan
     if ref_path.exists():
         ref = read_trajectory(ref_path)
         ate_m = ate(result.trajectory, ref)[0]
         online_m = ate(result.estimate, ref)[0]
+        if result.estimate.covariances is not None and len(result.estimate) > 1:
+            report = pose_nees(result.estimate, ref, result.estimate.covariances,
+                               reference_sigma_xy_m=REFERENCE_SIGMA[0], reference_sigma_phi_rad=REFERENCE_SIGMA[1])
+            outside, median = report.fraction_outside_95, report.median
         odo_m = ate(result.odometry, ref)[0]
         if result.frontend is not None:
             fe_m = ate(result.frontend, ref)[0]
@@ -151,7 +166,7 @@ def bench_log(log: Path, config: SLAMConfig, steps: int | None = None, progress=
                     resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
                     perturbation.label if perturbation is not None else "as logged",
                     result.totals.get("submaps", 0), result.totals.get("loop_closures", 0),
-                    result.stop_reason or ("interrupted" if result.interrupted else ""))
+                    result.stop_reason or ("interrupted" if result.interrupted else ""), outside, median)
 
 
 def _bench_or_failure(job: tuple[Path, Perturbation | None], config: SLAMConfig,

@@ -556,7 +556,8 @@ def bench(
         fail(exc)
     # The log and its input variant are the row's key: never wrapped, whatever the terminal.
     table = Table(Column("log", no_wrap=True), Column("input", no_wrap=True), "scans", "wall s", "ms/scan",
-                  "splines", "max state", "submaps", "loops", "peak RSS MB", "ATE m", "online ATE m", "odometry ATE m", "front end ATE m", "relations (Intel)",
+                  "splines", "max state", "submaps", "loops", "peak RSS MB", "ATE m", "online ATE m", "odometry ATE m", "front end ATE m",
+                  "online NEES: median, outside 95 %", "relations (Intel)",
                   title=f"bsslam bench ({config.mode}, backend {config.backend})")
     for row in rows:
         if isinstance(row, BenchFailure):
@@ -565,7 +566,7 @@ def bench(
         table.add_row(row.log, row.variant, str(row.scans) + (" (stopped)" if row.stopped else ""),
                       f"{row.wall_s:.1f}", f"{row.ms_per_scan:.1f}", str(row.splines), str(row.state_size),
                       str(row.submaps), str(row.loop_closures), f"{row.peak_rss_mb:.0f}", f"{row.ate_m:.3f}", f"{row.online_ate_m:.3f}", f"{row.odometry_ate_m:.3f}", f"{row.frontend_ate_m:.3f}",
-                      row.relations)
+                      f"{row.nees_median:.1f}, {100 * row.nees_outside_95:.0f} %", row.relations)
     Console(width=max(Console().width, 200)).print(table)
     if perturb:
         spread = Table("log", "runs", "median ATE m", "min", "max", "float32", "(max−min)/median",
