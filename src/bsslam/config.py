@@ -226,7 +226,12 @@ class ObservationConfig:
             60 steps without extension, mean NEES over the steps (3 dof): rounded-room 3.4 /
             2.7 / 1.7 for 0 / 2.5 / 5 mm; with 2.5 mm corridor-loop 3.6 and mixed 3.2. 5 mm
             was needed only while corner bias went undetected (see ``fit_bias_sigmas``).
-        r_inflation: factor on the range variance R (the paper's "inflated R" uses 3).
+        sigma_shared_m: σ of a range error shared by every beam of one scan that hits the
+            same map spline (m), on top of their independent ``sigma_range_m``: a wall that
+            is not where its spline says, a laser biased on one surface. Without it the ~90
+            beams of a wall count as 90 independent looks and a wall fixes the pose to
+            σ/√90; with it, to no better than about this σ. 0 = the paper's independent beams.
+        r_inflation: factor on the range variances (the paper's "inflated R" uses 3).
         gate_probability: χ² (1 dof) probability of the per-beam innovation gate.
         max_incidence_rad: beams hitting a wall more obliquely than this (angle between
             beam and wall normal) are dropped as grazing (rad). The range is strongly
@@ -241,6 +246,7 @@ class ObservationConfig:
 
     sigma_range_m: float = 0.03
     sigma_model_m: float = 0.0025
+    sigma_shared_m: float = 0.0
     r_inflation: float = 1.0
     gate_probability: float = 0.99
     max_incidence_rad: float = math.radians(45.0)
@@ -251,6 +257,7 @@ class ObservationConfig:
     def __post_init__(self) -> None:
         _check(0 < self.sigma_range_m <= MAX_SIGMA_M, f"observation.sigma_range_m must be in (0, {MAX_SIGMA_M:g}] m")
         _check(0 <= self.sigma_model_m <= MAX_SIGMA_M, f"observation.sigma_model_m must be in [0, {MAX_SIGMA_M:g}] m")
+        _check(0 <= self.sigma_shared_m <= MAX_SIGMA_M, f"observation.sigma_shared_m must be in [0, {MAX_SIGMA_M:g}] m")
         _check(0 < self.r_inflation <= MAX_FACTOR, f"observation.r_inflation must be in (0, {MAX_FACTOR:g}]")
         _check(0 < self.gate_probability < 1, "observation.gate_probability must be in (0, 1)")
         _check(0 < self.max_incidence_rad < math.pi / 2, "observation.max_incidence_rad must be in (0, π/2)")

@@ -128,3 +128,37 @@ def test_select_matches_the_numpy_form():
 def test_no_map_and_no_matches_gives_none():
     obs = SimpleNamespace(params=np.array([0.0, 0.5]), angles=np.zeros(2), ranges=np.ones(2))
     assert RangeModel(ObservationConfig()).beams([obs], [[]], None) is None   # the first scan: no map yet
+
+
+def _dense_whitening(group, ratio):
+    """The numpy oracle of :func:`beam_kernels.whiten_shared`: (I + ratio Σ_g 1_g 1_gᵀ)^(-1/2)
+    by an eigendecomposition of the dense (m, m) matrix."""
+    same = (group[:, None] == group[None, :]).astype(float)
+    vals, vecs = np.linalg.eigh(np.eye(group.size) + ratio * same)
+    return (vecs / np.sqrt(vals)) @ vecs.T
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_rows_are_whitened_against_the_shared_error_as_the_dense_inverse_root(seed):
+    """W H and W ν of the compiled kernel equal R^(-1/2) H and R^(-1/2) ν of the dense block
+    noise, so (W H)ᵀ (W H) is the information Hᵀ R⁻¹ H of the block noise."""
+    from bsslam.slam.beam_kernels import whiten_shared
+
+    rng = np.random.default_rng(seed)
+    m, c = int(rng.integers(1, 60)), int(rng.integers(1, 12))
+    group = rng.integers(0, 6, m) * 3           # sparse labels, some unused, groups interleaved
+    ratio = float(rng.uniform(0.0, 5.0))
+    H, nu = rng.normal(size=(m, c)), rng.normal(size=m)
+    got_H, got_nu = whiten_shared(group, ratio, H, nu)
+    W = _dense_whitening(group, ratio)
+    np.testing.assert_allclose(got_H, W @ H, atol=1e-12)
+    np.testing.assert_allclose(got_nu, W @ nu, atol=1e-12)
+    R = np.eye(m) + ratio * (group[:, None] == group[None, :])
+    np.testing.assert_allclose(got_H.T @ got_H, H.T @ np.linalg.solve(R, H), atol=1e-10)
+
+
+def test_without_a_shared_error_the_rows_are_not_whitened():
+    lin = SimpleNamespace()
+    assert RangeModel(ObservationConfig()).whitened(None, lin) is lin
+    model = RangeModel(ObservationConfig(sigma_range_m=0.03, sigma_model_m=0.0, sigma_shared_m=0.01))
+    assert model.row_variance == pytest.approx(0.03 ** 2 + 0.01 ** 2)

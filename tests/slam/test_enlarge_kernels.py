@@ -41,6 +41,11 @@ def test_beam_points_and_new_feature_block_match_the_numpy_form(seed, k, q):
     for name in ("mean", "cols", "J", "G_z"):
         _same(getattr(got_block, name), getattr(want_block, name))
     _same(got_block.noise(0.01), want_block.noise(0.01))
+    # an error shared by the k ranges: G (r I + s 1 1ᵀ) Gᵀ
+    k = got_block.G_z.shape[1]
+    np.testing.assert_allclose(got_block.noise(0.01, 0.02),
+                               got_block.G_z @ (0.01 * np.eye(k) + 0.02 * np.ones((k, k))) @ got_block.G_z.T,
+                               rtol=1e-12, atol=1e-15)
 
 
 @SETTINGS

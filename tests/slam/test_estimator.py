@@ -85,6 +85,29 @@ def test_operations_agree_with_the_dense_ekf(m, kind):
     np.testing.assert_allclose(compressed.diagonal(work), dense.diagonal(work), atol=1e-10)
 
 
+def test_whitened_rows_update_as_the_block_noise_of_a_shared_error():
+    """Rows whitened against an error shared per map spline (:meth:`RangeModel.whitened`)
+    with the scalar r update the compressed EKF exactly as the dense EKF updates with the
+    unwhitened rows and the block noise R = r I + s Σ_g 1_g 1_gᵀ: mean, covariance, NIS."""
+    from bsslam.slam.beam_kernels import whiten_shared
+
+    rng = np.random.default_rng(5)
+    compressed, dense = both(rng, 30)
+    m, r, s = 40, 1e-4, 3e-4
+    group = rng.integers(0, 4, m)
+    H, nu = rng.normal(size=(m, COLS.size)), rng.normal(size=m) * 0.01
+    R = r * np.eye(m) + s * (group[:, None] == group[None, :])
+    WH, Wnu = whiten_shared(group, s / r, H, nu)
+    i_c, i_d = compressed.update(COLS, WH, Wnu, r), dense.update(COLS, H, nu, R)
+    np.testing.assert_allclose(i_c.nis, i_d.nis, rtol=1e-9)
+    np.testing.assert_allclose(compressed.x, dense.x, atol=1e-12)
+    np.testing.assert_allclose(compressed.P, dense.P, atol=1e-10)
+    # and the shared error costs information: the pose is less certain than with r I alone
+    alone = both(np.random.default_rng(5), 30)[1]
+    alone.update(COLS, H, nu, r)
+    assert np.all(np.linalg.eigvalsh(dense.pose_covariance - alone.pose_covariance) > 0)
+
+
 def test_the_filter_on_either_estimator_gives_the_same_run():
     """Forty steps of a simulated run with map building through both estimators: the same
     poses, covariances and map to rounding (the same beams, gates and splines)."""

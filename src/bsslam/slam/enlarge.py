@@ -59,11 +59,17 @@ class LinearBlock:
     J: np.ndarray
     G_z: np.ndarray
 
-    def noise(self, range_variance: float) -> np.ndarray:
-        """(q, q) the ranges' share of the new entries' covariance, R G_z G_zᵀ (m²); the
-        rest, J P[cols, cols] Jᵀ and the cross terms J P[cols, :], are the state's
+    def noise(self, range_variance: float, shared_variance: float = 0.0) -> np.ndarray:
+        """(q, q) the ranges' share of the new entries' covariance (m²): independent ranges
+        of variance R and one error of variance s shared by all k of them (they are one
+        scan's beams on one surface), R G_z G_zᵀ + s (G_z 1)(G_z 1)ᵀ; the rest,
+        J P[cols, cols] Jᵀ and the cross terms J P[cols, :], are the state's
         (:meth:`JointState.append_dependent`)."""
-        return range_variance * (self.G_z @ self.G_z.T)
+        noise = range_variance * (self.G_z @ self.G_z.T)
+        if shared_variance:
+            g = self.G_z.sum(axis=1)
+            noise += shared_variance * np.outer(g, g)
+        return noise
 
 
 def stacked_map(A: np.ndarray, bp: BeamPoints) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -332,19 +332,20 @@ class SplineSLAM:
         with the prior. Gross outliers go first (loose gate at the prior); the real gate is
         applied at the first corrected estimate with posterior variances."""
         model = self.measurement
-        s_diag = window.innovation_variances(lin.cols, lin.H_c, lin.R)
+        s_diag = window.innovation_variances(lin.cols, lin.H_c, model.row_variance)
         coarse = lin.residual ** 2 <= self._loose_gate * s_diag
         report.drop("gate", int((~coarse).sum()))
         if not coarse.any():
             return None
         beams, lin = model.select(beams, lin, coarse)
-        gain = window.gain(lin.cols, lin.H_c, lin.R)
+        white = model.whitened(beams, lin)
+        gain = window.gain(white.cols, white.H_c, white.R)
         x_i = x0.copy()
-        x_i[work] += gain.correction(lin.residual)[0]
+        x_i[work] += gain.correction(white.residual)[0]
         lin = self._linearize(beams, x_i, offset)
         if lin is None:
             return None
-        fine = lin.residual ** 2 <= self._gate * gain.posterior_variances(lin.cols, lin.H_c, lin.R)
+        fine = lin.residual ** 2 <= self._gate * gain.posterior_variances(lin.cols, lin.H_c, model.row_variance)
         report.drop("gate", int((~fine).sum()))
         if not fine.any():
             return None
@@ -353,7 +354,8 @@ class SplineSLAM:
 
     def _iterate(self, beams, lin, x_i, window, x0, work, offset):
         """Gauss–Newton on the mean from x_i, on the working rows: ``(beams, lin, ν, gain)``
-        of the last iteration (ν the IEKF innovation at x_i), or None when every beam is
+        of the last iteration (ν the IEKF innovation at x_i; ``lin`` and ν whitened by
+        :meth:`RangeModel.whitened`), or None when every beam is
         lost. The iterations stop once a step moves every pose component by less than
         ``observation.iteration_tolerance`` of its posterior σ."""
         model = self.measurement
@@ -365,6 +367,7 @@ class SplineSLAM:
                 if lin is None:
                     return None
                 beams, lin = model.select(beams, lin, np.ones(lin.residual.shape[0], dtype=bool))
+            lin = model.whitened(beams, lin)
             gain = window.gain(lin.cols, lin.H_c, lin.R)
             # IEKF: ν_i = z − h(x_i) − H_i (x₀ − x_i)
             nu = lin.residual - lin.H_c @ (x0[lin.cols] - x_i[lin.cols])
@@ -434,7 +437,7 @@ class SplineSLAM:
         if cfg.mode == "localization":
             feature.fixed_control_points = block.mean.reshape(2, n).T.copy()
         else:
-            idx = self.state.append(block.mean, block.cols, block.J, block.noise(self.measurement.R))
+            idx = self.state.append(block.mean, block.cols, block.J, block.noise(self.measurement.R, self.measurement.shared))
             feature.idx_x, feature.idx_y = idx[:n], idx[n:]
         self.spline_map.add(feature)
         return True
@@ -466,7 +469,7 @@ class SplineSLAM:
             self.spline_map.extended(f, fitted.table)
             return True
         block = extension_block(new_rows, n_old, f.idx_x, f.idx_y, curve.control_points, bp)
-        new_idx = self.state.append(block.mean, block.cols, block.J, block.noise(self.measurement.R))
+        new_idx = self.state.append(block.mean, block.cols, block.J, block.noise(self.measurement.R, self.measurement.shared))
         self.state.transform(f.idx_x, ext.T)    # x[idx] ← T x[idx], P ← T P Tᵀ on that block
         self.state.transform(f.idx_y, ext.T)
         new_x, new_y = new_idx[:m], new_idx[m:]

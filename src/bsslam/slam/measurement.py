@@ -23,6 +23,7 @@ These are (22)–(27) of the paper; tests check them against finite differences.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -105,17 +106,30 @@ class MeasurementModel(Protocol):
     def select(self, beams: Beams, lin: Linearization, keep: np.ndarray) -> tuple[Beams, Linearization]:
         """The beams and their rows restricted to ``keep`` (m,) bool."""
 
+    def whitened(self, beams: Beams, lin: Linearization) -> Linearization:
+        """The rows with noise ``lin.R``·I that carry the same information as ``lin`` with
+        its full noise (``lin`` itself when its beams are independent)."""
+
 
 class RangeModel:
-    """The ray–spline range model with independent beams of equal variance
-    R = (σ_range² + σ_model²)·inflation (m²). Implements :class:`MeasurementModel`.
+    """The ray–spline range model. Each beam's range error is its own, of variance
+    R = (σ_range² + σ_model²)·inflation, plus one shared by every beam of the scan on the
+    same map spline, of variance σ_shared²·inflation (m²): the beams of one wall are not
+    independent where the wall is not where its spline says or the laser is biased on that
+    surface. Implements :class:`MeasurementModel`.
 
     Args:
         config: the observation settings (noise, beam stride, grazing limit).
+
+    Attributes:
+        R: the independent variance (m²); shared: the shared one (m²);
+        row_variance: a beam's whole variance R + shared (m²), what its gates weigh.
     """
 
     def __init__(self, config: ObservationConfig):
         self.R = (config.sigma_range_m ** 2 + config.sigma_model_m ** 2) * config.r_inflation
+        self.shared = config.sigma_shared_m ** 2 * config.r_inflation
+        self.row_variance = self.R + self.shared
         self.stride = config.beam_stride
         self.max_tan = math.tan(config.max_incidence_rad)
 
@@ -162,3 +176,14 @@ class RangeModel:
                                                       lin.H_c, lin.residual, lin.hit_t)
         return (Beams(index[0], values[0], values[1], values[2]),
                 Linearization(lin.cols, H_c, values[3], lin.R, index[1], values[4]))
+
+    def whitened(self, beams: Beams, lin: Linearization) -> Linearization:
+        """``lin`` with its rows whitened against the shared errors
+        (:func:`beam_kernels.whiten_shared`, one group per map spline), so that the rows with
+        noise R·I give the update, NIS and gains of the block noise. ``lin`` itself when
+        there is no shared error. Gate on the rows of ``lin`` with :attr:`row_variance`: a
+        whitened row is no longer one beam."""
+        if self.shared == 0.0:
+            return lin
+        H_c, residual = beam_kernels.whiten_shared(beams.curve[lin.beam], self.shared / self.R, lin.H_c, lin.residual)
+        return dataclasses.replace(lin, H_c=H_c, residual=residual)
