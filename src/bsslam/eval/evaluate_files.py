@@ -73,10 +73,11 @@ def read_matching_covariances(covariance_path: str | os.PathLike, est: Trajector
 
 def nees_files(est_path: str | os.PathLike, ref_path: str | os.PathLike, covariance_path: str | os.PathLike, *,
                reference_sigma_xy_m: float = 0.0, reference_sigma_phi_rad: float = 0.0, max_dt: float = 0.05,
-               ref_offset: float = 0.0, exact_reference: bool = False) -> NeesReport:
+               ref_offset: float = 0.0, exact_reference: bool = False, nees_frame: str = "first-pose") -> NeesReport:
     """:func:`~bsslam.eval.pose_nees.pose_nees` of trajectory files and the estimate's
-    covariance CSV (e.g. ``trajectory_online.tum`` with ``pose_covariance_online.csv``);
-    no alignment when ``exact_reference``.
+    covariance CSV (e.g. ``trajectory_online.tum`` with ``pose_covariance_online.csv``),
+    the error taken in ``nees_frame`` (:data:`~bsslam.eval.pose_nees.NEES_FRAMES`), or as
+    it is when ``exact_reference``.
 
     Raises:
         InputError: unreadable files, covariances not matching the estimate, or too few
@@ -86,7 +87,7 @@ def nees_files(est_path: str | os.PathLike, ref_path: str | os.PathLike, covaria
     covariances = read_matching_covariances(covariance_path, est)
     return pose_nees(est, read_trajectory(ref_path), covariances, reference_sigma_xy_m=reference_sigma_xy_m,
                      reference_sigma_phi_rad=reference_sigma_phi_rad, max_dt=max_dt, offset=ref_offset,
-                     align=not exact_reference)
+                     frame="same" if exact_reference else nees_frame)
 
 
 def evaluate_files(est_path: str | os.PathLike, ref_path: str | os.PathLike | None,
@@ -94,7 +95,7 @@ def evaluate_files(est_path: str | os.PathLike, ref_path: str | os.PathLike | No
                    max_dt: float = 0.05, *, relations_max_dt: float = 0.001, ref_offset: float = 0.0,
                    exact_reference: bool = False, rpe_delta: int = 1,
                    covariance_path: str | os.PathLike | None = None, reference_sigma_xy_m: float = 0.0,
-                   reference_sigma_phi_rad: float = 0.0) -> dict[str, Any]:
+                   reference_sigma_phi_rad: float = 0.0, nees_frame: str = "first-pose") -> dict[str, Any]:
     """Evaluate a trajectory file (TUM or ``t x y θ``).
 
     Args:
@@ -118,6 +119,8 @@ def evaluate_files(est_path: str | os.PathLike, ref_path: str | os.PathLike | No
             ``exact_reference`` NEES.
         reference_sigma_xy_m, reference_sigma_phi_rad: the reference's own σ (m, rad),
             added to the estimate's covariance for that NEES.
+        nees_frame: the frame that NEES takes the error in (:func:`pose_nees`):
+            ``first-pose`` (the frame of a SLAM estimate's covariances) or ``aligned``.
 
     Returns:
         dict with, when a reference is given: ``matched``, ``ate_m``, ``rpe_trans_m`` and
@@ -145,7 +148,7 @@ def evaluate_files(est_path: str | os.PathLike, ref_path: str | os.PathLike | No
             report = pose_nees(est, ref, read_matching_covariances(covariance_path, est),
                                reference_sigma_xy_m=reference_sigma_xy_m,
                                reference_sigma_phi_rad=reference_sigma_phi_rad, max_dt=max_dt, offset=ref_offset,
-                               align=not exact_reference)
+                               frame="same" if exact_reference else nees_frame)
             result.update(nees_mean=report.mean, nees_median=report.median,
                           nees_fraction_outside_95=report.fraction_outside_95, nees_count=len(report.nees),
                           nees_skipped_singular=report.skipped_singular)
@@ -170,7 +173,8 @@ def write_metrics_json(target: PathOrFile, metrics: dict[str, Any]) -> None:
 def write_evaluation_plot(est_path: str | os.PathLike, ref_path: str | os.PathLike,
                           target: str | os.PathLike, max_dt: float = 0.05, ref_offset: float = 0.0, *,
                           covariance_path: str | os.PathLike | None = None, reference_sigma_xy_m: float = 0.0,
-                          reference_sigma_phi_rad: float = 0.0, exact_reference: bool = False) -> Path:
+                          reference_sigma_phi_rad: float = 0.0, exact_reference: bool = False,
+                          nees_frame: str = "first-pose") -> Path:
     """Draw the estimate aligned onto the reference as the ATE aligns it, and the position
     error of the matched poses over time, to ``target`` (PNG, SVG or PDF by its suffix);
     with ``covariance_path`` also the NEES of :func:`nees_files` over time.
@@ -188,7 +192,7 @@ def write_evaluation_plot(est_path: str | os.PathLike, ref_path: str | os.PathLi
     if covariance_path is not None:
         report = pose_nees(est, ref, read_matching_covariances(covariance_path, est),
                            reference_sigma_xy_m=reference_sigma_xy_m, reference_sigma_phi_rad=reference_sigma_phi_rad,
-                           max_dt=max_dt, offset=ref_offset, align=not exact_reference)
+                           max_dt=max_dt, offset=ref_offset, frame="same" if exact_reference else nees_frame)
     return save_evaluation_figure(target, aligned.poses, ref.poses, aligned.stamps[est_idx], error,
                                   title=f"{Path(est_path).name} against {Path(ref_path).name}: ATE {rmse:.3f} m",
                                   nees=report)
