@@ -46,6 +46,23 @@ def _encode(value: Any, step: str, newline: str) -> str:
         numbers = _number_texts(value)
         parts = numbers if numbers is not None else [_encode(item, step, inner) for item in value]
         return "[" + inner + ("," + inner).join(parts) + newline + "]"
+    return _scalar(value)
+
+
+def _scalar(value: Any) -> str:
+    """One value that is not a container, as the json module writes it."""
+    kind = type(value)
+    if kind is int:
+        return int.__repr__(value)
+    if kind is float:
+        if not math.isfinite(value):
+            raise ValueError(f"Out of range float values are not JSON compliant: {value!r}")
+        return float.__repr__(value)
+    if kind is str:
+        return json.encoder.encode_basestring_ascii(value)
+    if value is None:
+        return "null"
+    # bools, subclasses and the rest: the json module's own way (slow, but rare here)
     return _SCALAR.encode(value)
 
 
