@@ -450,16 +450,36 @@ class ReferenceMap:
 
     # -- correlative search ------------------------------------------------------------------
 
-    def correlative(self, points: np.ndarray, guess: np.ndarray) -> tuple[np.ndarray, float]:
-        """Best pose (3,) of the two-level correlative search around ``guess`` and its fine
-        mean likelihood."""
-        cfg = self.config
-        guess = np.asarray(guess, dtype=float)
-        grid = _search_grid(cfg, self.coarse.resolution, self.fine.resolution)
+    def _coarse_poses(self, guess: np.ndarray) -> np.ndarray:
+        """(r, 3) the coarse level's rotations of ``guess`` (3,), translations whole cells
+        added by :meth:`LikelihoodField.score_grid`."""
+        grid = _search_grid(self.config, self.coarse.resolution, self.fine.resolution)
         poses = np.empty((grid.rot_steps.shape[0], 3))
         poses[:, 0], poses[:, 1] = guess[0], guess[1]
         poses[:, 2] = guess[2] + grid.rot_steps
-        score = self.coarse.score_grid(points, poses, grid.coarse_half, grid.coarse_step)   # (r, t)
+        return poses
+
+    def coarse_scores(self, points: np.ndarray, guess: np.ndarray) -> np.ndarray:
+        """(r, t) float32, read-only: the raw coarse level of the search around ``guess``
+        (every rotation × offset, no tie-break), which :meth:`correlative` and
+        :meth:`alternative` both start from; pass it to both (``coarse=``) to compute it
+        once for the same points and guess."""
+        grid = _search_grid(self.config, self.coarse.resolution, self.fine.resolution)
+        score = self.coarse.score_grid(points, self._coarse_poses(np.asarray(guess, dtype=float)), grid.coarse_half,
+                                       grid.coarse_step)
+        score.flags.writeable = False
+        return score
+
+    def correlative(self, points: np.ndarray, guess: np.ndarray, coarse: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, float]:
+        """Best pose (3,) of the two-level correlative search around ``guess`` and its fine
+        mean likelihood. ``coarse``: :meth:`coarse_scores` of these points and guess, if
+        already computed."""
+        cfg = self.config
+        guess = np.asarray(guess, dtype=float)
+        grid = _search_grid(cfg, self.coarse.resolution, self.fine.resolution)
+        poses = self._coarse_poses(guess)
+        score = self.coarse_scores(points, guess) if coarse is None else coarse   # (r, t)
         # Quadratic tie-break towards the guess: −w at the window's corner.
         score = score - grid.coarse_penalty
         candidates = _distinct_maxima(score, cfg.coarse_candidates, rot_sep=2, off=grid.offsets,
@@ -486,7 +506,7 @@ class ReferenceMap:
         return best, float(fine[p, t])
 
     def alternative(self, points: np.ndarray, guess: np.ndarray, best: np.ndarray, sep_m: float,
-                    sep_rad: float) -> tuple[np.ndarray, float]:
+                    sep_rad: float, coarse: np.ndarray | None = None) -> tuple[np.ndarray, float]:
         """The runner-up of :meth:`correlative`: the best pose (3,) of the same two-level
         search around ``guess`` among the poses *distinct* from ``best`` (more than
         ``sep_m`` in translation or ``sep_rad`` in heading away), and its fine mean
@@ -494,15 +514,14 @@ class ReferenceMap:
 
         Scores are raw (without the tie-break towards the guess) so that the ratio to the
         best's score measures ambiguity (repetitive structure), not distance from the guess.
+        ``coarse``: :meth:`coarse_scores` of these points and guess, if already computed.
         """
         cfg = self.config
         guess = np.asarray(guess, dtype=float)
         best = np.asarray(best, dtype=float)
         grid = _search_grid(cfg, self.coarse.resolution, self.fine.resolution)
-        poses = np.empty((grid.rot_steps.shape[0], 3))
-        poses[:, 0], poses[:, 1] = guess[0], guess[1]
-        poses[:, 2] = guess[2] + grid.rot_steps
-        score = self.coarse.score_grid(points, poses, grid.coarse_half, grid.coarse_step).astype(float)
+        poses = self._coarse_poses(guess)
+        score = (self.coarse_scores(points, guess) if coarse is None else coarse).astype(float)
 
         def near(x: np.ndarray, y: np.ndarray, phi: np.ndarray) -> np.ndarray:
             turn = np.abs((phi - best[2] + np.pi) % (2 * np.pi) - np.pi)
