@@ -33,14 +33,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cached_property, lru_cache
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from bsslam.errors import InputError
 from bsslam.config import FrontendConfig
-from bsslam.frontend.kernels import grid_index, point_to_line, splat_max, window_scores
+from bsslam.frontend.kernels import first_per_cell, grid_index, point_to_line, splat_max, window_scores
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.se2 import compose
 
@@ -91,15 +91,13 @@ def scan_points(scan: LaserScan, laser_offset: np.ndarray | None, config: Fronte
 
 
 def voxel_thin(points: np.ndarray, cell_m: float) -> np.ndarray:
-    """Indices (increasing) of one point per occupied ``cell_m`` square: the first one."""
-    points = np.asarray(points, dtype=float)
-    if points.shape[0] == 0:
-        return np.zeros(0, dtype=np.intp)
-    cells = np.floor(points / cell_m).astype(np.int64)
-    cells -= cells.min(axis=0)
-    key = cells[:, 0] * (int(cells[:, 1].max()) + 1) + cells[:, 1]
-    _, first = np.unique(key, return_index=True)
-    return np.sort(first)
+    """Indices (increasing) of one point per occupied ``cell_m`` square: the first one.
+
+    Compiled (:func:`~bsslam.frontend.kernels.first_per_cell`, a hash of the cells seen):
+    the numpy form, a sort of the cell keys, is the tests' oracle
+    (``tests/frontend/test_kernels.py``)."""
+    points = np.ascontiguousarray(points, dtype=float).reshape(-1, 2)
+    return first_per_cell(points, float(cell_m))
 
 
 @lru_cache(maxsize=1024)
@@ -450,10 +448,16 @@ class ReferenceMap:
 
     # -- correlative search ------------------------------------------------------------------
 
+    @cached_property
+    def _grid(self) -> _SearchGrid:
+        """The search's pose grids (looked up once per map: hashing the configuration for
+        the shared cache costs more than a scan's use of it)."""
+        return _search_grid(self.config, self.coarse.resolution, self.fine.resolution)
+
     def _coarse_poses(self, guess: np.ndarray) -> np.ndarray:
         """(r, 3) the coarse level's rotations of ``guess`` (3,), translations whole cells
         added by :meth:`LikelihoodField.score_grid`."""
-        grid = _search_grid(self.config, self.coarse.resolution, self.fine.resolution)
+        grid = self._grid
         poses = np.empty((grid.rot_steps.shape[0], 3))
         poses[:, 0], poses[:, 1] = guess[0], guess[1]
         poses[:, 2] = guess[2] + grid.rot_steps
@@ -464,7 +468,7 @@ class ReferenceMap:
         (every rotation × offset, no tie-break), which :meth:`correlative` and
         :meth:`alternative` both start from; pass it to both (``coarse=``) to compute it
         once for the same points and guess."""
-        grid = _search_grid(self.config, self.coarse.resolution, self.fine.resolution)
+        grid = self._grid
         score = self.coarse.score_grid(points, self._coarse_poses(np.asarray(guess, dtype=float)), grid.coarse_half,
                                        grid.coarse_step)
         score.flags.writeable = False
@@ -477,7 +481,7 @@ class ReferenceMap:
         already computed."""
         cfg = self.config
         guess = np.asarray(guess, dtype=float)
-        grid = _search_grid(cfg, self.coarse.resolution, self.fine.resolution)
+        grid = self._grid
         poses = self._coarse_poses(guess)
         score = self.coarse_scores(points, guess) if coarse is None else coarse   # (r, t)
         # Quadratic tie-break towards the guess: −w at the window's corner.
@@ -519,7 +523,7 @@ class ReferenceMap:
         cfg = self.config
         guess = np.asarray(guess, dtype=float)
         best = np.asarray(best, dtype=float)
-        grid = _search_grid(cfg, self.coarse.resolution, self.fine.resolution)
+        grid = self._grid
         poses = self._coarse_poses(guess)
         score = (self.coarse_scores(points, guess) if coarse is None else coarse).astype(float)
 
