@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from bsslam.frontend.kernels import _nearest, grid_index, point_to_line, splat_max
-from bsslam.frontend.scan_matcher import LikelihoodField
+from bsslam.frontend.kernels import _nearest, first_per_cell, grid_index, point_to_line, splat_max
+from bsslam.frontend.scan_matcher import LikelihoodField, voxel_thin
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -91,3 +91,34 @@ def test_point_to_line_is_the_numpy_form():
     np.einsum("ij,ij->i", n, moved - qn[idx, :2], out=expected[:, 3])
     np.testing.assert_array_equal(Jr, expected)
     np.testing.assert_array_equal(w, huber / np.maximum(np.abs(expected[:, 3]), huber))
+
+
+def _voxel_thin_numpy(points, cell_m):
+    """The numpy form voxel_thin had: one point per cell, the first, by a sort of the keys."""
+    points = np.asarray(points, dtype=float)
+    if points.shape[0] == 0:
+        return np.zeros(0, dtype=np.intp)
+    cells = np.floor(points / cell_m).astype(np.int64)
+    cells -= cells.min(axis=0)
+    key = cells[:, 0] * (int(cells[:, 1].max()) + 1) + cells[:, 1]
+    _, first = np.unique(key, return_index=True)
+    return np.sort(first)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_first_per_cell_is_the_numpy_form(seed):
+    """The same indices in the same order, on clouds from a few points to thousands, small
+    and far from the origin, with points on cell borders and repeated points."""
+    rng = np.random.default_rng(seed)
+    for _ in range(50):
+        n = int(rng.integers(1, 3000))
+        scale = float(rng.choice([0.5, 5.0, 50.0, 1e4]))
+        pts = rng.normal(size=(n, 2)) * scale + rng.normal(size=2) * 3 * scale
+        if rng.uniform() < 0.3:
+            pts = np.round(pts, 1)            # on cell borders, and repeated
+        cell = float(rng.choice([0.05, 0.1, 0.3, 1.0]))
+        got = first_per_cell(pts, cell)
+        np.testing.assert_array_equal(got, _voxel_thin_numpy(pts, cell))
+        assert got.dtype == np.intp
+    assert first_per_cell(np.zeros((0, 2)), 0.1).shape == (0,)
+    assert np.array_equal(voxel_thin(np.zeros((0, 2)), 0.1), np.zeros(0, dtype=np.intp))

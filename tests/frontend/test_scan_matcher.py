@@ -363,3 +363,10 @@ def test_alternative_is_the_correlative_search_without_the_best(seed):
     assert math.hypot(alt[0] - best[0], alt[1] - best[1]) > 0.3 or turn > math.radians(5.0)
     oracle = reference.fine.score_poses(cur, alt[None, :], np.zeros((1, 2), dtype=np.int64))[0, 0]
     assert alt_score == pytest.approx(float(oracle), abs=1e-6) and alt_score <= score
+    # the shared coarse level gives both searches exactly what they compute on their own
+    coarse = reference.coarse_scores(cur, guess)
+    assert not coarse.flags.writeable
+    shared_best, shared_score = reference.correlative(cur, guess, coarse)
+    assert np.array_equal(shared_best, best) and shared_score == score
+    shared_alt, shared_alt_score = reference.alternative(cur, guess, best, 0.3, math.radians(5.0), coarse)
+    assert np.array_equal(shared_alt, alt) and shared_alt_score == alt_score

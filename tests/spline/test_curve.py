@@ -12,6 +12,7 @@ from spline_cases import curves, domain_samples
 
 from bsslam.errors import SplineError
 from bsslam.spline import BSplineCurve, clamped_knots
+from bsslam.spline.basis import basis_functions
 
 SETTINGS = settings(max_examples=40, deadline=None)
 
@@ -123,3 +124,23 @@ def test_with_control_points_keeps_knots_and_degree():
     other = curve.with_control_points(np.ones((4, 2)))
     assert other.knots is curve.knots and other.degree == 3
     np.testing.assert_allclose(other.evaluate([0.3]), [[1.0, 1.0]])
+
+
+def _evaluate_numpy(curve: BSplineCurve, t: np.ndarray) -> np.ndarray:
+    """The whole-array form BSplineCurve.evaluate had (the oracle of kernels.curve_points):
+    the basis on each parameter's span, then the weighted sum of its control points."""
+    span, values = basis_functions(curve.knots, curve.degree, t, 0)
+    local = curve.control_points[span[:, None] - curve.degree + np.arange(curve.degree + 1)]
+    return np.einsum("mr,mrd->md", values[0], local)
+
+
+@settings(max_examples=200, deadline=None)
+@given(curve=curves(), seed=st.integers(0, 2**32 - 1))
+def test_evaluate_is_the_numpy_form_bit_for_bit(curve, seed):
+    """Inside the domain, outside it (clamped), at every knot, at ±inf and NaN."""
+    rng = np.random.default_rng(seed)
+    lo, hi = curve.domain
+    t = np.concatenate([domain_samples(curve.knots, curve.degree, rng), rng.uniform(lo - 2.0, hi + 2.0, 20),
+                        curve.knots, [lo, hi, -np.inf, np.inf, np.nan]])
+    np.testing.assert_array_equal(curve.evaluate(t), _evaluate_numpy(curve, t))
+    np.testing.assert_array_equal(curve.evaluate(float(t[0])), _evaluate_numpy(curve, t[:1]))

@@ -216,3 +216,50 @@ def point_to_line(rotated, x0, x1, gate, qn, start, lo_x, lo_y, cell, nx, ny, hu
         w[m] = huber / max(abs(r), huber)
         m += 1
     return Jr[:m].copy(), w[:m].copy(), found
+
+
+# -- thinning ---------------------------------------------------------------------------------
+
+
+@jit
+def first_per_cell(points, cell_m):
+    """Indices (increasing) of the first point of ``points`` (m, 2) in each occupied square
+    cell of side ``cell_m`` (m): the body of :func:`~bsslam.frontend.scan_matcher.voxel_thin`.
+
+    A point's cell is ``floor(p / cell_m)`` per axis, keyed as numpy's form keyed it (cells
+    from the lowest one, ``cx·(span_y + 1) + cy``); the first point of a key is found with a
+    hash table of the keys seen (open addressing, twice the points' slots), one pass in
+    point order instead of a sort of the keys."""
+    m = points.shape[0]
+    if m == 0:
+        return np.empty(0, dtype=np.intp)
+    cx = np.empty(m, dtype=np.int64)
+    cy = np.empty(m, dtype=np.int64)
+    for i in range(m):
+        cx[i] = np.int64(math.floor(points[i, 0] / cell_m))
+        cy[i] = np.int64(math.floor(points[i, 1] / cell_m))
+    min_x, min_y, max_y = cx.min(), cy.min(), cy.max()
+    width = max_y - min_y + 1
+    bits = 4
+    while (1 << bits) < 2 * m:
+        bits += 1
+    size = 1 << bits
+    shift, mask = np.uint64(64 - bits), np.uint64(size - 1)
+    table = np.full(size, -1, dtype=np.int64)
+    keep = np.empty(m, dtype=np.intp)
+    k = 0
+    for i in range(m):
+        key = (cx[i] - min_x) * width + (cy[i] - min_y)
+        # Fibonacci hashing: the high bits of key × 2⁶⁴/φ spread neighbouring cells
+        slot = (np.uint64(key) * np.uint64(11400714819323198485)) >> shift
+        while True:
+            held = table[slot]
+            if held == -1:
+                table[slot] = key
+                keep[k] = i
+                k += 1
+                break
+            if held == key:
+                break
+            slot = (slot + np.uint64(1)) & mask
+    return keep[:k].copy()

@@ -218,7 +218,8 @@ class LaserOdometry:
         pose = np.asarray(pose, dtype=float).copy()
         kf = _Keyframe(pose, pts, normals, linear, *self._to_world(pose, pts, normals))
         reach = 2.0 * self.config.max_range_m + self.config.search_window_m
-        near = [k for k in self._keyframes if math.hypot(*(k.pose[:2] - pose[:2])) <= reach]
+        x, y = pose[0], pose[1]      # the same differences, without a slice and array per keyframe
+        near = [k for k in self._keyframes if math.hypot(k.pose[0] - x, k.pose[1] - y) <= reach]
         if len(near) < len(self._keyframes):
             # the robot jumped away from them: they cannot overlap its scans any more
             self._keyframes = deque(near, maxlen=self.config.submap_keyframes)

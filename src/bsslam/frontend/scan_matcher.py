@@ -33,14 +33,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cached_property, lru_cache
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from bsslam.errors import InputError
 from bsslam.config import FrontendConfig
-from bsslam.frontend.kernels import grid_index, point_to_line, splat_max, window_scores
+from bsslam.frontend.kernels import first_per_cell, grid_index, point_to_line, splat_max, window_scores
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.se2 import compose
 
@@ -91,15 +91,13 @@ def scan_points(scan: LaserScan, laser_offset: np.ndarray | None, config: Fronte
 
 
 def voxel_thin(points: np.ndarray, cell_m: float) -> np.ndarray:
-    """Indices (increasing) of one point per occupied ``cell_m`` square: the first one."""
-    points = np.asarray(points, dtype=float)
-    if points.shape[0] == 0:
-        return np.zeros(0, dtype=np.intp)
-    cells = np.floor(points / cell_m).astype(np.int64)
-    cells -= cells.min(axis=0)
-    key = cells[:, 0] * (int(cells[:, 1].max()) + 1) + cells[:, 1]
-    _, first = np.unique(key, return_index=True)
-    return np.sort(first)
+    """Indices (increasing) of one point per occupied ``cell_m`` square: the first one.
+
+    Compiled (:func:`~bsslam.frontend.kernels.first_per_cell`, a hash of the cells seen):
+    the numpy form, a sort of the cell keys, is the tests' oracle
+    (``tests/frontend/test_kernels.py``)."""
+    points = np.ascontiguousarray(points, dtype=float).reshape(-1, 2)
+    return first_per_cell(points, float(cell_m))
 
 
 @lru_cache(maxsize=1024)
@@ -450,16 +448,42 @@ class ReferenceMap:
 
     # -- correlative search ------------------------------------------------------------------
 
-    def correlative(self, points: np.ndarray, guess: np.ndarray) -> tuple[np.ndarray, float]:
-        """Best pose (3,) of the two-level correlative search around ``guess`` and its fine
-        mean likelihood."""
-        cfg = self.config
-        guess = np.asarray(guess, dtype=float)
-        grid = _search_grid(cfg, self.coarse.resolution, self.fine.resolution)
+    @cached_property
+    def _grid(self) -> _SearchGrid:
+        """The search's pose grids (looked up once per map: hashing the configuration for
+        the shared cache costs more than a scan's use of it)."""
+        return _search_grid(self.config, self.coarse.resolution, self.fine.resolution)
+
+    def _coarse_poses(self, guess: np.ndarray) -> np.ndarray:
+        """(r, 3) the coarse level's rotations of ``guess`` (3,), translations whole cells
+        added by :meth:`LikelihoodField.score_grid`."""
+        grid = self._grid
         poses = np.empty((grid.rot_steps.shape[0], 3))
         poses[:, 0], poses[:, 1] = guess[0], guess[1]
         poses[:, 2] = guess[2] + grid.rot_steps
-        score = self.coarse.score_grid(points, poses, grid.coarse_half, grid.coarse_step)   # (r, t)
+        return poses
+
+    def coarse_scores(self, points: np.ndarray, guess: np.ndarray) -> np.ndarray:
+        """(r, t) float32, read-only: the raw coarse level of the search around ``guess``
+        (every rotation × offset, no tie-break), which :meth:`correlative` and
+        :meth:`alternative` both start from; pass it to both (``coarse=``) to compute it
+        once for the same points and guess."""
+        grid = self._grid
+        score = self.coarse.score_grid(points, self._coarse_poses(np.asarray(guess, dtype=float)), grid.coarse_half,
+                                       grid.coarse_step)
+        score.flags.writeable = False
+        return score
+
+    def correlative(self, points: np.ndarray, guess: np.ndarray, coarse: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, float]:
+        """Best pose (3,) of the two-level correlative search around ``guess`` and its fine
+        mean likelihood. ``coarse``: :meth:`coarse_scores` of these points and guess, if
+        already computed."""
+        cfg = self.config
+        guess = np.asarray(guess, dtype=float)
+        grid = self._grid
+        poses = self._coarse_poses(guess)
+        score = self.coarse_scores(points, guess) if coarse is None else coarse   # (r, t)
         # Quadratic tie-break towards the guess: −w at the window's corner.
         score = score - grid.coarse_penalty
         candidates = _distinct_maxima(score, cfg.coarse_candidates, rot_sep=2, off=grid.offsets,
@@ -486,7 +510,7 @@ class ReferenceMap:
         return best, float(fine[p, t])
 
     def alternative(self, points: np.ndarray, guess: np.ndarray, best: np.ndarray, sep_m: float,
-                    sep_rad: float) -> tuple[np.ndarray, float]:
+                    sep_rad: float, coarse: np.ndarray | None = None) -> tuple[np.ndarray, float]:
         """The runner-up of :meth:`correlative`: the best pose (3,) of the same two-level
         search around ``guess`` among the poses *distinct* from ``best`` (more than
         ``sep_m`` in translation or ``sep_rad`` in heading away), and its fine mean
@@ -494,15 +518,14 @@ class ReferenceMap:
 
         Scores are raw (without the tie-break towards the guess) so that the ratio to the
         best's score measures ambiguity (repetitive structure), not distance from the guess.
+        ``coarse``: :meth:`coarse_scores` of these points and guess, if already computed.
         """
         cfg = self.config
         guess = np.asarray(guess, dtype=float)
         best = np.asarray(best, dtype=float)
-        grid = _search_grid(cfg, self.coarse.resolution, self.fine.resolution)
-        poses = np.empty((grid.rot_steps.shape[0], 3))
-        poses[:, 0], poses[:, 1] = guess[0], guess[1]
-        poses[:, 2] = guess[2] + grid.rot_steps
-        score = self.coarse.score_grid(points, poses, grid.coarse_half, grid.coarse_step).astype(float)
+        grid = self._grid
+        poses = self._coarse_poses(guess)
+        score = (self.coarse_scores(points, guess) if coarse is None else coarse).astype(float)
 
         def near(x: np.ndarray, y: np.ndarray, phi: np.ndarray) -> np.ndarray:
             turn = np.abs((phi - best[2] + np.pi) % (2 * np.pi) - np.pi)

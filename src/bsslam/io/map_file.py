@@ -23,6 +23,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from bsslam.errors import InputError, SplineError
+from bsslam.io.indented_json import dumps_indented
 from bsslam.io.path_or_file import PathOrFile, describe, open_path_or_file
 
 MAP_FORMAT = "bsslam-spline-map"
@@ -121,7 +122,7 @@ def write_map_json(target: PathOrFile, splines: Iterable[Any],
     }
     try:
         # allow_nan=False: NaN/inf would make a file other JSON readers refuse
-        text = json.dumps(document, allow_nan=False, indent=1)
+        text = dumps_indented(document, indent=1)
     except (TypeError, ValueError) as exc:
         raise SplineError(f"map cannot be written as JSON: {exc}") from None
     with open_path_or_file(target, "w") as f:

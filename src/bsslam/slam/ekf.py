@@ -16,8 +16,8 @@ import numpy as np
 import functools
 
 from scipy.linalg.lapack import dgeqrf, dormqr, dpotrf, dtrtrs
-from scipy.stats import chi2
 
+from bsslam.chi2 import chi2_quantile
 from bsslam.errors import FilterError
 from bsslam.slam.kernels import take_block
 from bsslam.slam.state import POSE, JointState
@@ -25,7 +25,7 @@ from bsslam.slam.state import POSE, JointState
 
 def gate_threshold(probability: float) -> float:
     """χ² (1 dof) bound of the per-beam innovation gate."""
-    return float(chi2.ppf(probability, 1))
+    return chi2_quantile(probability, 1)
 
 
 def innovation_variances(P: np.ndarray | CovarianceColumns, cols: np.ndarray, H_c: np.ndarray,

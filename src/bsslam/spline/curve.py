@@ -8,7 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from bsslam.errors import SplineError
-from bsslam.spline.basis import basis_functions
+from bsslam.spline import kernels
+from bsslam.spline.basis import as_parameters, basis_functions
 from bsslam.spline.knots import check_degree, check_knots, knot_domain
 from bsslam.spline.pieces import PolynomialPieces, polynomial_pieces
 
@@ -105,6 +106,11 @@ class BSplineCurve:
 
     def evaluate(self, t: object, der: int = 0) -> np.ndarray:
         """Curve point (``der`` = 0) or its ``der``-th derivative at ``t``, shape (m, 2)."""
+        if der == 0:
+            # compiled (kernels.curve_points): the basis and the sum below, per parameter
+            # in the same order; a whole-array evaluation cost ~30 numpy calls per curve
+            return kernels.curve_points(np.ascontiguousarray(self.knots, dtype=float), self.degree,
+                                        np.ascontiguousarray(self.control_points, dtype=float), as_parameters(t))
         span, values = basis_functions(self.knots, self.degree, t, der)
         local = self.control_points[span[:, None] - self.degree + np.arange(self.degree + 1)]
         return np.einsum("mr,mrd->md", values[der], local)

@@ -627,3 +627,55 @@ def curve_table_arrays(K, n_knots, degrees):
                 for r in range(d + 1):
                     power_basis[sel[i], k, r] = values[k, i, r] / factorials[k]
     return ok, ints, floats, keys, window, real, power_basis
+
+
+@jit
+def curve_points(knots, degree, control_points, t):
+    """(m, 2) points (m) of one B-spline curve at parameters t (m,), clamped into its
+    domain: the body of :meth:`BSplineCurve.evaluate <bsslam.spline.BSplineCurve.evaluate>`.
+
+    Per parameter, the operations of the whole-array form (the tests' oracle: the span of
+    :func:`~bsslam.spline.basis.find_span`, the values of
+    :func:`~bsslam.spline.basis.basis_functions`, then ``einsum("mr,mrd->md")``, which sums
+    over r in order) in its order, so bit for bit the same; a NaN parameter gives a NaN
+    point on the last span, as there."""
+    p = degree
+    m = t.shape[0]
+    n_knots = knots.shape[0]
+    n_control = n_knots - p - 1
+    lo, hi = knots[p], knots[n_control]
+    first = search_right(knots, 0, n_knots, lo) - 1
+    last = search_left(knots, 0, n_knots, hi) - 1
+    out = np.empty((m, 2))
+    n = np.empty(p + 1)
+    left = np.empty(p + 1)
+    right = np.empty(p + 1)
+    for i in range(m):
+        ti = t[i]
+        if math.isnan(ti):
+            span = last        # numpy sorts NaN after every knot; np.clip keeps it NaN
+        else:
+            span = min(max(search_right(knots, 0, n_knots, ti) - 1, first), last)
+            ti = min(max(ti, lo), hi)
+        # Piegl & Tiller A2.2, as basis._basis_values does it (up and down products, the
+        # first value the bare up product)
+        n[0] = 1.0
+        for j in range(1, p + 1):
+            left[j] = ti - knots[span + 1 - j]
+            right[j] = knots[span + j] - ti
+            saved = 0.0
+            for r in range(j):
+                temp = n[r] / (right[r + 1] + left[j - r])
+                up = right[r + 1] * temp
+                n[r] = up if r == 0 else saved + up
+                saved = left[j - r] * temp
+            n[j] = saved
+        base = span - p
+        x = n[0] * control_points[base, 0]
+        y = n[0] * control_points[base, 1]
+        for r in range(1, p + 1):
+            x = x + n[r] * control_points[base + r, 0]
+            y = y + n[r] * control_points[base + r, 1]
+        out[i, 0] = x
+        out[i, 1] = y
+    return out

@@ -211,7 +211,8 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
     pts = query.points[voxel_thin(query.points, cfg.scan_voxel_m)]
     pts = pts[even_subset(pts.shape[0], cfg.max_scan_points)]
     search = pts[even_subset(pts.shape[0], cfg.search_points)]
-    start, correlation = ref.correlative(search, guess)
+    coarse = ref.coarse_scores(search, guess)     # the best's and the runner-up's search share it
+    start, correlation = ref.correlative(search, guess, coarse)
     pose, info, residuals, weights, _ = ref.refine(pts, start, guess, np.linalg.inv(guess_covariance))
 
     # Covariance: the residual σ the larger of the stated and the estimated one, inflated.
@@ -256,7 +257,8 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
     agree = voting & (in_c >= config.loop_min_inlier_fraction * over_c)
     n_voting, n_agree = int(np.count_nonzero(voting)), int(np.count_nonzero(agree))
 
-    alternative, alt_score = ref.alternative(search, guess, start, config.loop_distinct_m, config.loop_distinct_rad)
+    alternative, alt_score = ref.alternative(search, guess, start, config.loop_distinct_m, config.loop_distinct_rad,
+                                             coarse)
     ambiguity = alt_score / correlation if correlation > 0 else 1.0
     if np.all(np.isfinite(covariance)):
         # a rival the match's covariance admits (sliding along a corridor it leaves free)

@@ -66,8 +66,8 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
-from scipy.stats import chi2
 
+from bsslam.chi2 import chi2_quantile
 from bsslam.errors import FilterError
 
 #: Default σ² of node 0's prior: the map frame is defined by node 0, held (almost) fixed.
@@ -368,7 +368,7 @@ class PoseGraph:
         loop closures agree with the graph, and a classification costs a few hundred
         Levenberg–Marquardt solves of the whole graph."""
         errors = self._loop_errors_at(self._isam.calculateBestEstimate())
-        within = errors ** 2 <= chi2.ppf(self.loop_inlier_probability, 3)
+        within = errors ** 2 <= chi2_quantile(self.loop_inlier_probability, 3)
         return bool(np.array_equal(within, self._loop_inlier))
 
     def _solve_in_batch(self) -> None:
