@@ -49,9 +49,7 @@ from bsslam.config import MappingConfig, SLAMConfig, SplineConfig  # noqa: E402
 from bsslam.experiments.consistency import simulation_config  # noqa: E402
 from bsslam.se2 import between as relative  # noqa: E402
 from bsslam.sim import SimConfig, get_world, simulate  # noqa: E402
-from bsslam.sim.geometry import WallSet, rounded_rectangle_walls  # noqa: E402
-from bsslam.sim.paths import rounded_rectangle_loop  # noqa: E402
-from bsslam.sim.worlds import World  # noqa: E402
+from bsslam.sim.worlds import large_corridor  # noqa: E402
 from bsslam.slam import SplineSLAM  # noqa: E402
 from bsslam.slam.measurement import RangeModel  # noqa: E402
 from bsslam.slam.state import JointState, _subtract_outer  # noqa: E402
@@ -98,17 +96,6 @@ def reference_update_ms(n: int = 1000, rank: int = 55, repeats: int = 15) -> flo
         _subtract_outer(P, P[:, cols] @ W)
         times.append(time.perf_counter() - t0)
     return 1000 * float(np.median(times))
-
-
-def large_corridor(width_m: float = 30.0, height_m: float = 20.0) -> World:
-    """A 3 m wide corridor loop inside outer walls of width_m × height_m (m), corners rounded
-    concentrically (3.5 m outside, 0.5 m inside), the robot on the centre line."""
-    w, h = width_m, height_m
-    outer = rounded_rectangle_walls(0.0, 0.0, w, h, radii=(3.5, 3.5, 3.5, 3.5))
-    inner = rounded_rectangle_walls(3.0, 3.0, w - 3.0, h - 3.0, radii=(0.5, 0.5, 0.5, 0.5))
-    return World(name="large-corridor", description=f"3 m wide corridor loop, {w:g} × {h:g} m",
-                 walls=WallSet(outer + inner),
-                 path=rounded_rectangle_loop(1.5, 1.5, w - 1.5, h - 1.5, radii=(2.0, 2.0, 2.0, 2.0)))
 
 
 def run(frames, config, stage_times=None, profile_window=None):

@@ -109,6 +109,20 @@ def _mixed() -> World:
     )
 
 
+def large_corridor(width_m: float = 30.0, height_m: float = 20.0) -> World:
+    """A 3 m wide corridor loop inside outer walls of width_m × height_m (m), corners rounded
+    concentrically (3.5 m outside, 0.5 m inside), the robot on the centre line, starting
+    on the straight stretch along the x axis. Not in :data:`WORLDS`: the benchmarks' long
+    corridors (``bench_filter.py``, ``corridor_consistency.py``) and the tests of what a
+    straight wall may tell the filter along itself."""
+    w, h = width_m, height_m
+    outer = rounded_rectangle_walls(0.0, 0.0, w, h, radii=(3.5, 3.5, 3.5, 3.5))
+    inner = rounded_rectangle_walls(3.0, 3.0, w - 3.0, h - 3.0, radii=(0.5, 0.5, 0.5, 0.5))
+    return World(name="large-corridor", description=f"3 m wide corridor loop, {w:g} × {h:g} m",
+                 walls=WallSet(outer + inner),
+                 path=rounded_rectangle_loop(1.5, 1.5, w - 1.5, h - 1.5, radii=(2.0, 2.0, 2.0, 2.0)))
+
+
 WORLDS: dict[str, World] = {w.name: w for w in (_rounded_room(), _corridor_loop(), _mixed(), _curved_wall())}
 """Every built-in world by name; ``rounded-room`` is the default of the demos."""
 
