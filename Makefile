@@ -10,6 +10,7 @@ bench:
 	python benchmarks/bench_segment.py
 	python benchmarks/bench_filter.py
 	python benchmarks/bench_filter.py --defaults
+	python benchmarks/corridor_consistency.py
 experiments:
 	bsslam experiment fit-knots --out results/fit-knots
 	bsslam experiment fit-order --out results/fit-order

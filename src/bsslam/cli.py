@@ -695,19 +695,26 @@ def consistency(variant: Variant = typer.Option(..., help="Which filter variant.
                 workers: Optional[int] = typer.Option(None, help=WORKERS_HELP),
                 scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
                 estimator: Estimator = typer.Option(Estimator.ekf, help=ESTIMATOR_HELP),
+                significant_bends: bool = typer.Option(False, help="What a map spline says along itself "
+                                                       "limited to its significant bend "
+                                                       "(observation.significant_bends_only); off: the paper's "
+                                                       "update."),
                 out: Path = typer.Option(Path("results/consistency"), help=OUT_HELP)) -> None:
     """Paper Figs. 10/12: average pose NEES over Monte Carlo runs with the 95% χ² band."""
+    import dataclasses
+
     from bsslam.experiments.consistency import consistency_experiment, write_consistency
 
     from bsslam.config import SLAMConfig
 
     settings = {"experiment": "consistency", "variant": variant.value, "runs": runs, "seed": seed, "world": world,
-                "steps": steps, "estimator": estimator.value}
+                "steps": steps, "estimator": estimator.value, "significant_bends": significant_bends}
+    base = SLAMConfig(estimator=estimator.value)
+    base = base.replace(observation=dataclasses.replace(base.observation, significant_bends_only=significant_bends))
     with experiment_folder(out, settings) as run_dir:
         with progress_bar(f"consistency ({variant.value})", runs, "runs") as update:
             res = consistency_experiment(variant.value, runs=runs, seed=seed, world=world, steps=steps,
-                                         workers=workers, scheduler=scheduler, progress=update,
-                                         base=SLAMConfig(estimator=estimator.value))
+                                         workers=workers, scheduler=scheduler, progress=update, base=base)
         write_consistency(res, run_dir)
     exit_step = res.first_exit()
     print_summary({

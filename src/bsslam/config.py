@@ -231,6 +231,11 @@ class ObservationConfig:
             is not where its spline says, a laser biased on one surface. Without it the ~90
             beams of a wall count as 90 independent looks and a wall fixes the pose to
             σ/√90; with it, to no better than about this σ. 0 = the paper's independent beams.
+        significant_bends_only: what the beams on one map spline say along that spline is
+            scaled by w = max(0, 1 − σ²/Δθ²), Δθ the angle the spline turns between its
+            first and last hit and σ its prior σ: a straight wall says nothing along itself,
+            whatever its fitted wiggles (:mod:`bsslam.slam.bends`). False = the paper's
+            update, which reads the wiggles as shape.
         r_inflation: factor on the range variances (the paper's "inflated R" uses 3).
         gate_probability: χ² (1 dof) probability of the per-beam innovation gate.
         max_incidence_rad: beams hitting a wall more obliquely than this (angle between
@@ -247,6 +252,7 @@ class ObservationConfig:
     sigma_range_m: float = 0.03
     sigma_model_m: float = 0.0025
     sigma_shared_m: float = 0.0
+    significant_bends_only: bool = False
     r_inflation: float = 1.0
     gate_probability: float = 0.99
     max_incidence_rad: float = math.radians(45.0)

@@ -291,13 +291,14 @@ class SplineSLAM:
         if beams is None:
             return
         x0 = self.state.x.copy()
-        lin = self._linearize(beams, x0, offset, report)
-        if lin is None:
-            return
         # the entries a relinearisation reads: the pose and the beams' splines (the subsets
         # the gates select keep to these curves); the rest of the state is corrected once, at the end
         work = np.concatenate([POSE, mc.state_indices(beams.used_curves, self.state.size)])
         window = self.state.window(work)
+        lin = model.linearize(beams, mc, x0, offset, report)
+        if lin is None:
+            return
+        lin = self._constrained(beams, lin, x0, window)
         gated = self._gated(beams, lin, window, x0, work, offset, report)
         if gated is None:
             return
@@ -314,12 +315,21 @@ class SplineSLAM:
         report.nis_dof += int(nu.shape[0])
         report.beams_used = report.nis_dof
 
-    def _linearize(self, beams, x, offset, report: StepReport | None = None):
-        """The beams linearised at ``x`` (:meth:`RangeModel.linearize`) with the Jacobian
-        the estimator works with (:meth:`Estimator.constrain`); None when no beam is left."""
-        lin = self.measurement.linearize(beams, self.spline_map.table, x, offset, report)
-        if lin is None:
-            return None
+    def _linearize(self, beams, x, offset, window):
+        """The beams linearised at ``x`` (:meth:`RangeModel.linearize`) as
+        :meth:`_constrained` gives them; None when no beam is left."""
+        lin = self.measurement.linearize(beams, self.spline_map.table, x, offset)
+        return None if lin is None else self._constrained(beams, lin, x, window)
+
+    def _constrained(self, beams, lin, x, window):
+        """``lin`` with what each spline says along itself limited to what its bend at
+        ``x`` supports under the prior ``window`` (:meth:`RangeModel.bend_weights`,
+        :meth:`RangeModel.limit_along_splines`: the beams the gates keep decide the bend),
+        and the Jacobian the estimator works with (:meth:`Estimator.constrain`)."""
+        model, curves = self.measurement, self.spline_map.table
+        bends = model.bend_weights(beams, lin, curves, x,
+                                   lambda idx, row: window.innovation_variances(idx, row[None, :], 0.0)[0])
+        lin = model.limit_along_splines(beams, lin, curves, bends)
         H_c = self.state.constrain(lin.cols, lin.H_c)
         return lin if H_c is lin.H_c else dataclasses.replace(lin, H_c=H_c)
 
@@ -342,7 +352,7 @@ class SplineSLAM:
         gain = window.gain(white.cols, white.H_c, white.R)
         x_i = x0.copy()
         x_i[work] += gain.correction(white.residual)[0]
-        lin = self._linearize(beams, x_i, offset)
+        lin = self._linearize(beams, x_i, offset, window)
         if lin is None:
             return None
         fine = lin.residual ** 2 <= self._gate * gain.posterior_variances(lin.cols, lin.H_c, model.row_variance)
@@ -363,7 +373,7 @@ class SplineSLAM:
         prior_pose_var = np.diag(self.state.pose_covariance)
         for it in range(self.config.observation.iterations):
             if it:
-                lin = self._linearize(beams, x_i, offset)
+                lin = self._linearize(beams, x_i, offset, window)
                 if lin is None:
                     return None
                 beams, lin = model.select(beams, lin, np.ones(lin.residual.shape[0], dtype=bool))

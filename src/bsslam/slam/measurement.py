@@ -34,6 +34,7 @@ import numpy as np
 from bsslam.config import ObservationConfig
 from bsslam.scan import ObservedSpline
 from bsslam.slam import beam_kernels, range_kernels
+from bsslam.slam.bends import scale_along_spline, spline_bend_weight
 from bsslam.slam.association import Match
 from bsslam.se2 import compose
 from bsslam.slam.map_curves import MapCurves
@@ -127,6 +128,7 @@ class RangeModel:
     """
 
     def __init__(self, config: ObservationConfig):
+        self.significant_bends_only = config.significant_bends_only
         self.R = (config.sigma_range_m ** 2 + config.sigma_model_m ** 2) * config.r_inflation
         self.shared = config.sigma_shared_m ** 2 * config.r_inflation
         self.row_variance = self.R + self.shared
@@ -187,3 +189,40 @@ class RangeModel:
             return lin
         H_c, residual = beam_kernels.whiten_shared(beams.curve[lin.beam], self.shared / self.R, lin.H_c, lin.residual)
         return dataclasses.replace(lin, H_c=H_c, residual=residual)
+
+    def bend_weights(self, beams: Beams, lin: Linearization, curves: MapCurves, x: np.ndarray,
+                     variance_of) -> dict[int, float]:
+        """How much of what each map spline of ``lin`` says along itself its bend supports:
+        {curve index: w} for the splines with w < 1 (:mod:`bsslam.slam.bends`); empty
+        unless ``observation.significant_bends_only``. ``variance_of(state_indices, row)``
+        gives the prior variance of a linear function of the state (a covariance
+        window's), the bend taken at ``x`` between the extreme hits of ``lin``'s rows."""
+        if not self.significant_bends_only:
+            return {}
+        group = beams.curve[lin.beam]
+        weights = {}
+        for c in np.unique(group):          # a handful of splines a scan
+            feature = curves.features[c]
+            rows = group == c
+            if np.count_nonzero(rows) < 2 or not feature.in_state:
+                continue
+            w = spline_bend_weight(lin.hit_t[rows], feature.knots, feature.degree, feature.control_points(x),
+                                   feature.idx_x, feature.idx_y, variance_of)
+            if w < 1.0:
+                weights[int(c)] = w
+        return weights
+
+    def limit_along_splines(self, beams: Beams, lin: Linearization, curves: MapCurves,
+                            weights: dict[int, float]) -> Linearization:
+        """``lin`` with each spline's rows scaled along the spline by its weight
+        (:meth:`bend_weights`; ``lin`` itself when there is none)."""
+        if not weights:
+            return lin
+        group = beams.curve[lin.beam]
+        H_c = lin.H_c.copy()
+        for c, w in weights.items():
+            rows = np.flatnonzero(group == c)
+            if rows.shape[0]:
+                feature = curves.features[c]
+                scale_along_spline(H_c, lin.cols, rows, w, feature.idx_x, feature.idx_y)
+        return dataclasses.replace(lin, H_c=H_c)
