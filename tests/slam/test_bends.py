@@ -16,7 +16,7 @@ from bsslam.experiments.consistency import simulation_config
 from bsslam.pipeline import run_dataset
 from bsslam.sim import SimConfig, simulate
 from bsslam.sim.worlds import large_corridor
-from bsslam.slam.bends import bend_weight, scale_along_spline, tangent_angle_rows
+from bsslam.slam.bends import bend_weight, scale_along_splines, tangent_angle_rows
 from bsslam.spline.curve import BSplineCurve
 from bsslam.spline.knots import clamped_knots_with_spans
 
@@ -73,30 +73,35 @@ def _rows(rng, m=12):
 def test_scaling_removes_the_along_spline_part_and_keeps_the_gauge():
     rng = np.random.default_rng(1)
     H, cols, idx_x, idx_y = _rows(rng)
-    rows = np.arange(H.shape[0])
-    out = H.copy()
-    scale_along_spline(out, cols, rows, 0.0, idx_x, idx_y)
-    g = H[:, :2]
+    group = np.zeros(H.shape[0], dtype=np.intp)
+    group[-3:] = 5                  # three rows of another spline, not weighted: left alone
+    mine = group == 0
+    spline = {0: (idx_x, idx_y)}
+
+    def scaled(w):
+        out = H.copy()
+        scale_along_splines(out, cols, group, {0: w}, spline)
+        return out
+
+    out = scaled(0.0)
+    g = H[mine, :2]
     normal = (g / np.linalg.norm(g, axis=1, keepdims=True)).sum(axis=0)
     tangent = np.array([-normal[1], normal[0]]) / np.hypot(*normal)
     # nothing is left along the spline's mean tangent: moving the robot along it changes no range
-    np.testing.assert_allclose(out[:, :2] @ tangent, 0.0, atol=1e-12)
+    np.testing.assert_allclose(out[mine, :2] @ tangent, 0.0, atol=1e-12)
     # across the spline nothing changes
     np.testing.assert_allclose(out[:, :2] @ normal, H[:, :2] @ normal, rtol=1e-12)
-    # the heading and the other spline's columns are untouched
+    # the heading, the other spline's columns and the other spline's rows are untouched
     np.testing.assert_array_equal(out[:, 2], H[:, 2])
     np.testing.assert_array_equal(out[:, 13:], H[:, 13:])
+    np.testing.assert_array_equal(out[~mine], H[~mine])
     # moving the robot and the whole spline together changes no range, before and after
     for H_ in (H, out):
-        np.testing.assert_allclose(H_[:, 0] + H_[:, idx_x].sum(axis=1), 0.0, atol=1e-12)
-        np.testing.assert_allclose(H_[:, 1] + H_[:, idx_y].sum(axis=1), 0.0, atol=1e-12)
+        np.testing.assert_allclose(H_[mine, 0] + H_[mine][:, idx_x].sum(axis=1), 0.0, atol=1e-12)
+        np.testing.assert_allclose(H_[mine, 1] + H_[mine][:, idx_y].sum(axis=1), 0.0, atol=1e-12)
     # w = 1 changes nothing; w = ½ removes half
-    same = H.copy()
-    scale_along_spline(same, cols, rows, 1.0, idx_x, idx_y)
-    np.testing.assert_allclose(same, H, atol=1e-15)
-    half = H.copy()
-    scale_along_spline(half, cols, rows, 0.5, idx_x, idx_y)
-    np.testing.assert_allclose(half[:, :2] @ tangent, 0.5 * (H[:, :2] @ tangent), atol=1e-12)
+    np.testing.assert_allclose(scaled(1.0), H, atol=1e-15)
+    np.testing.assert_allclose(scaled(0.5)[mine, :2] @ tangent, 0.5 * (H[mine, :2] @ tangent), atol=1e-12)
 
 
 def _corridor_nees(bends: bool, seeds: int = 8, steps: int = 50) -> float:

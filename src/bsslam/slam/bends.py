@@ -63,48 +63,56 @@ def bend_weight(bend_rad: float, variance: float) -> float:
     return 1.0 - variance / (bend_rad * bend_rad)
 
 
-def spline_bend_weight(hit_t: np.ndarray, knots: np.ndarray, degree: int, control_points: np.ndarray,
-                       idx_x: np.ndarray, idx_y: np.ndarray, variance_of) -> float:
-    """w of one spline in one scan: Δθ between its first and last hit (``hit_t`` (k,), m)
-    and its variance under the prior, ``variance_of(state_indices, row)`` → the prior
-    variance of row · x[state_indices] (a window's innovation variance with R = 0).
+def spline_bend(hit_t: np.ndarray, knots: np.ndarray, degree: int,
+                control_points: np.ndarray) -> tuple[float, np.ndarray]:
+    """The angle Δθ (rad) one spline turns between its first and last hit (``hit_t`` (k,),
+    m) and its gradient (2n,) over the spline's [x_0 … x_{n−1}, y_0 … y_{n−1}] (rad/m).
 
     Args:
-        knots, degree, control_points: the spline at the linearisation point.
-        idx_x, idx_y: (n,) the state indices of its control points.
+        knots, degree, control_points: the spline at the linearisation point, (n, 2) (m).
     """
     angle, grad = tangent_angle_rows(knots, degree, control_points, np.array([hit_t.min(), hit_t.max()]))
-    bend = float(wrap_angle(angle[1] - angle[0]))
-    return bend_weight(bend, float(variance_of(np.concatenate([idx_x, idx_y]), grad[1] - grad[0])))
+    return float(wrap_angle(angle[1] - angle[0])), grad[1] - grad[0]
 
 
-def scale_along_spline(H_c: np.ndarray, cols: np.ndarray, rows: np.ndarray, w: float,
-                       idx_x: np.ndarray, idx_y: np.ndarray) -> None:
-    """Scale, in place, the part of the Jacobian rows ``rows`` of one spline's beams along
-    the spline's mean tangent (over those beams) by ``w``.
+def scale_along_splines(H_c: np.ndarray, cols: np.ndarray, group: np.ndarray, weights: dict[int, float],
+                        control_indices: dict[int, tuple[np.ndarray, np.ndarray]]) -> None:
+    """Scale, in place, the part of each spline's Jacobian rows along the spline's mean
+    tangent (over its rows) by its weight; one pass over all rows.
 
     Args:
         H_c: (m, c) the stacked Jacobian on ``cols`` (c,), the pose's x, y first; for every
             row ∂z/∂(x, y) = g and ∂z/∂(x_j, y_j) = −β_j g (paper (22)–(27)), so g is scaled
             in both: the robot and the spline moved along the spline alike.
-        rows: the rows of this spline's beams.
-        idx_x, idx_y: (n,) the state indices of its control points.
+        group: (m,) each row's spline (its curve index).
+        weights: {curve index: w} of the splines to scale (others are left as they are).
+        control_indices: {curve index: (idx_x, idx_y)} the state indices of each weighted
+            spline's control points.
     """
-    g = H_c[rows, :2]
+    g = H_c[:, :2]
     g2 = np.einsum("ij,ij->i", g, g)
-    normal = (g / np.sqrt(g2)[:, None]).sum(axis=0)
-    normal /= np.hypot(*normal)
-    tangent = np.array([-normal[1], normal[0]])
-    removed = (1.0 - w) * (g @ tangent)      # (k,) each row's along-tangent part taken out
-    # β of each row's control points, from H = −β g, before g changes
+    labels = np.array(sorted(weights), dtype=np.intp)
+    slot = np.searchsorted(labels, group)
+    slot[slot == labels.shape[0]] = 0
+    weighted = labels[slot] == group
+    unit = g / np.sqrt(g2)[:, None]
+    normal = np.zeros((labels.shape[0], 2))
+    np.add.at(normal, slot[weighted], unit[weighted])
+    normal /= np.hypot(normal[:, 0], normal[:, 1])[:, None]
+    tangent = np.column_stack([-normal[:, 1], normal[:, 0]])[slot]      # (m, 2) each row's
+    keep = np.array([weights[int(c)] for c in labels])[slot]
+    removed = np.where(weighted, (1.0 - keep) * np.einsum("ij,ij->i", g, tangent), 0.0)
+    # β of each row's control points, from H = −β g, before g changes (zero off its spline)
+    idx_x = np.concatenate([control_indices[int(c)][0] for c in labels])
+    idx_y = np.concatenate([control_indices[int(c)][1] for c in labels])
     position = np.full(max(int(cols.max()), int(idx_x.max()), int(idx_y.max())) + 1, -1, dtype=np.intp)
     position[cols] = np.arange(cols.shape[0])
     px, py = position[idx_x], position[idx_y]
     present = (px >= 0) & (py >= 0)
     px, py = px[present], py[present]
-    beta = -(H_c[np.ix_(rows, px)] * g[:, :1] + H_c[np.ix_(rows, py)] * g[:, 1:]) / g2[:, None]
-    H_c[rows, 0] -= removed * tangent[0]
-    H_c[rows, 1] -= removed * tangent[1]
+    beta = -(H_c[:, px] * g[:, :1] + H_c[:, py] * g[:, 1:]) / g2[:, None]
+    shift = removed[:, None] * tangent
+    H_c[:, :2] -= shift
     # −β (g − removed·tangent) = −β g + β·removed·tangent
-    H_c[np.ix_(rows, px)] += beta * (removed * tangent[0])[:, None]
-    H_c[np.ix_(rows, py)] += beta * (removed * tangent[1])[:, None]
+    H_c[:, px] += beta * shift[:, :1]
+    H_c[:, py] += beta * shift[:, 1:]

@@ -327,8 +327,7 @@ class SplineSLAM:
         :meth:`RangeModel.limit_along_splines`: the beams the gates keep decide the bend),
         and the Jacobian the estimator works with (:meth:`Estimator.constrain`)."""
         model, curves = self.measurement, self.spline_map.table
-        bends = model.bend_weights(beams, lin, curves, x,
-                                   lambda idx, row: window.innovation_variances(idx, row[None, :], 0.0)[0])
+        bends = model.bend_weights(beams, lin, curves, x, lambda idx, rows: window.innovation_variances(idx, rows, 0.0))
         lin = model.limit_along_splines(beams, lin, curves, bends)
         H_c = self.state.constrain(lin.cols, lin.H_c)
         return lin if H_c is lin.H_c else dataclasses.replace(lin, H_c=H_c)

@@ -34,7 +34,7 @@ import numpy as np
 from bsslam.config import ObservationConfig
 from bsslam.scan import ObservedSpline
 from bsslam.slam import beam_kernels, range_kernels
-from bsslam.slam.bends import scale_along_spline, spline_bend_weight
+from bsslam.slam.bends import bend_weight, scale_along_splines, spline_bend
 from bsslam.slam.association import Match
 from bsslam.se2 import compose
 from bsslam.slam.map_curves import MapCurves
@@ -191,26 +191,33 @@ class RangeModel:
         return dataclasses.replace(lin, H_c=H_c, residual=residual)
 
     def bend_weights(self, beams: Beams, lin: Linearization, curves: MapCurves, x: np.ndarray,
-                     variance_of) -> dict[int, float]:
+                     variances_of) -> dict[int, float]:
         """How much of what each map spline of ``lin`` says along itself its bend supports:
         {curve index: w} for the splines with w < 1 (:mod:`bsslam.slam.bends`); empty
-        unless ``observation.significant_bends_only``. ``variance_of(state_indices, row)``
-        gives the prior variance of a linear function of the state (a covariance
-        window's), the bend taken at ``x`` between the extreme hits of ``lin``'s rows."""
+        unless ``observation.significant_bends_only``. ``variances_of(state_indices (k,),
+        rows (g, k))`` gives the prior variances (g,) of linear functions of the state (a
+        covariance window's), asked once for all the splines; the bend is taken at ``x``
+        between the extreme hits of ``lin``'s rows."""
         if not self.significant_bends_only:
             return {}
         group = beams.curve[lin.beam]
-        weights = {}
+        found = []                          # (curve, Δθ, its state indices, its gradient)
         for c in np.unique(group):          # a handful of splines a scan
             feature = curves.features[c]
             rows = group == c
             if np.count_nonzero(rows) < 2 or not feature.in_state:
                 continue
-            w = spline_bend_weight(lin.hit_t[rows], feature.knots, feature.degree, feature.control_points(x),
-                                   feature.idx_x, feature.idx_y, variance_of)
-            if w < 1.0:
-                weights[int(c)] = w
-        return weights
+            bend, grad = spline_bend(lin.hit_t[rows], feature.knots, feature.degree, feature.control_points(x))
+            found.append((int(c), bend, np.concatenate([feature.idx_x, feature.idx_y]), grad))
+        if not found:
+            return {}
+        union = np.unique(np.concatenate([f[2] for f in found]))
+        A = np.zeros((len(found), union.shape[0]))
+        for i, (_, _, idx, grad) in enumerate(found):
+            A[i, np.searchsorted(union, idx)] = grad
+        variances = variances_of(union, A)
+        weights = {c: bend_weight(bend, float(v)) for (c, bend, _, _), v in zip(found, variances)}
+        return {c: w for c, w in weights.items() if w < 1.0}
 
     def limit_along_splines(self, beams: Beams, lin: Linearization, curves: MapCurves,
                             weights: dict[int, float]) -> Linearization:
@@ -218,11 +225,7 @@ class RangeModel:
         (:meth:`bend_weights`; ``lin`` itself when there is none)."""
         if not weights:
             return lin
-        group = beams.curve[lin.beam]
         H_c = lin.H_c.copy()
-        for c, w in weights.items():
-            rows = np.flatnonzero(group == c)
-            if rows.shape[0]:
-                feature = curves.features[c]
-                scale_along_spline(H_c, lin.cols, rows, w, feature.idx_x, feature.idx_y)
+        scale_along_splines(H_c, lin.cols, beams.curve[lin.beam], weights,
+                            {c: (curves.features[c].idx_x, curves.features[c].idx_y) for c in weights})
         return dataclasses.replace(lin, H_c=H_c)
