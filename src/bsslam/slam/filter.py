@@ -295,10 +295,9 @@ class SplineSLAM:
         # the gates select keep to these curves); the rest of the state is corrected once, at the end
         work = np.concatenate([POSE, mc.state_indices(beams.used_curves, self.state.size)])
         window = self.state.window(work)
-        lin = model.linearize(beams, mc, x0, offset, report)
+        lin = self._linearize(beams, x0, offset, window, report)
         if lin is None:
             return
-        lin = self._constrained(beams, lin, x0, window)
         gated = self._gated(beams, lin, window, x0, work, offset, report)
         if gated is None:
             return
@@ -315,18 +314,16 @@ class SplineSLAM:
         report.nis_dof += int(nu.shape[0])
         report.beams_used = report.nis_dof
 
-    def _linearize(self, beams, x, offset, window):
-        """The beams linearised at ``x`` (:meth:`RangeModel.linearize`) as
-        :meth:`_constrained` gives them; None when no beam is left."""
-        lin = self.measurement.linearize(beams, self.spline_map.table, x, offset)
-        return None if lin is None else self._constrained(beams, lin, x, window)
-
-    def _constrained(self, beams, lin, x, window):
-        """``lin`` with what each spline says along itself limited to what its bend at
-        ``x`` supports under the prior ``window`` (:meth:`RangeModel.bend_weights`,
-        :meth:`RangeModel.limit_along_splines`: the beams the gates keep decide the bend),
-        and the Jacobian the estimator works with (:meth:`Estimator.constrain`)."""
+    def _linearize(self, beams, x, offset, window, report: StepReport | None = None):
+        """The beams linearised at ``x`` (:meth:`RangeModel.linearize`), what each spline
+        says along itself limited to what its bend at ``x`` supports under the prior
+        ``window`` (:meth:`RangeModel.bend_weights`, :meth:`RangeModel.limit_along_splines`:
+        the beams the gates keep decide the bend), with the Jacobian the estimator works
+        with (:meth:`Estimator.constrain`); None when no beam is left."""
         model, curves = self.measurement, self.spline_map.table
+        lin = model.linearize(beams, curves, x, offset, report)
+        if lin is None:
+            return None
         bends = model.bend_weights(beams, lin, curves, x, lambda idx, rows: window.innovation_variances(idx, rows, 0.0))
         lin = model.limit_along_splines(beams, lin, curves, bends)
         H_c = self.state.constrain(lin.cols, lin.H_c)
