@@ -10,7 +10,7 @@ paper's motion model, no front end, no second pass: ``simulation_config``):
   80 × 50 m loop driven once (1200 scans);
 * ``rho-0.2``: ρ = 0.2 m without extension in the 30 × 20 m loop driven twice;
 
-each with the paper's EKF and the observability-constrained EKF, with spline extension on
+each with the paper's EKF, the observability-constrained EKF and the invariant EKF, with spline extension on
 and off, and with ``observation.significant_bends_only`` off (the paper's update) and on. For each: the pose NEES (3 dof, exact ground truth, no alignment)
 averaged over the steps and over ``--seeds`` runs (3.0 if consistent), the final position
 error and the final heading σ. A benchmark, not a test: it prints figures.
@@ -60,7 +60,7 @@ def main() -> None:
     print(f"{'corridor':>9} {'estimator':>9} {'extension':>9} {'bends':>5} {'mean NEES':>10} {'min–max over runs':>18} "
           f"{'final error m':>14} {'final σ_φ rad':>14} {'s/run':>6}")
     for name, (base, world, steps) in setups().items():
-        for estimator in ("ekf", "oc-ekf"):
+        for estimator in ("ekf", "oc-ekf", "invariant"):
             for extend, bends in ((True, False), (True, True), (False, False), (False, True)):
                 if extend and not base.mapping.extend:
                     continue   # rho-0.2 is the no-extension setting of bench_filter

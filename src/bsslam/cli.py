@@ -681,10 +681,12 @@ class Variant(str, Enum):
 class Estimator(str, Enum):
     ekf = "ekf"
     oc_ekf = "oc-ekf"
+    invariant = "invariant"
 
 
 ESTIMATOR_HELP = ("ekf: the paper's filter; oc-ekf: the observability-constrained EKF (global translation "
-                  "and rotation stay unobservable in its linearisations).")
+                  "and rotation stay unobservable in its linearisations); invariant: the EKF in invariant "
+                  "error coordinates, where they are unobservable exactly.")
 
 
 @experiment_app.command("consistency")

@@ -354,8 +354,9 @@ class MappingConfig:
 Mode = Literal["slam", "localization"]
 
 #: The joint Gaussian's filter: "ekf" the paper's, "oc-ekf" the observability-constrained
-#: EKF (:mod:`bsslam.slam.oc_ekf`).
-EstimatorName = Literal["ekf", "oc-ekf"]
+#: EKF (:mod:`bsslam.slam.oc_ekf`), "invariant" the invariant EKF
+#: (:mod:`bsslam.slam.invariant_ekf`).
+EstimatorName = Literal["ekf", "oc-ekf", "invariant"]
 BackendName = Literal["submaps", "ekf"]
 LoopOutliers = Literal["cauchy", "gnc"]
 
@@ -791,7 +792,10 @@ class SLAMConfig:
         estimator: "ekf" (the paper's) or "oc-ekf": the observability-constrained EKF
             (Huang, Mourikis, Roumeliotis), whose linearisations keep global translation and
             rotation unobservable, so the map does not make the filter believe it knows its
-            heading (full SLAM only; localisation in a given map uses the EKF).
+            heading; "invariant": the EKF in right-invariant error coordinates
+            (Barrau and Bonnabel), where those directions are the same at every estimate,
+            so no update can inform them, exactly (full SLAM only; localisation in a given
+            map uses the EKF).
     """
 
     spline: SplineConfig = field(default_factory=SplineConfig)
@@ -815,7 +819,8 @@ class SLAMConfig:
         _check(self.mode in ("slam", "localization"), f"mode must be 'slam' or 'localization', got {self.mode!r}")
         _check(self.backend in ("submaps", "ekf"), f"backend must be 'submaps' or 'ekf', got {self.backend!r}")
         _check(1.0 <= self.max_memory_mb <= 1e7, "max_memory_mb must be in [1, 1e7] MB")
-        _check(self.estimator in ("ekf", "oc-ekf"), f"estimator must be 'ekf' or 'oc-ekf', got {self.estimator!r}")
+        _check(self.estimator in ("ekf", "oc-ekf", "invariant"),
+               f"estimator must be 'ekf', 'oc-ekf' or 'invariant', got {self.estimator!r}")
         _check(isinstance(self.relocalize, bool), f"relocalize must be true or false, got {self.relocalize!r}")
         _check(len(self.initial_pose_sigma) == 3 and all(s >= 0 for s in self.initial_pose_sigma),
                "initial_pose_sigma must be three values ≥ 0")

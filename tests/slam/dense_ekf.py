@@ -102,8 +102,8 @@ class DenseEKF:
         P[:3, :3] += Q_pose
         self.P = 0.5 * (P + P.T)
 
-    def constrain(self, cols, H_c):
-        return H_c
+    def constrain(self, cols, H_c, x=None):
+        return cols, H_c
 
     def anchor(self, idx_x, idx_y):
         pass

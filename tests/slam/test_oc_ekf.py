@@ -41,10 +41,10 @@ class Recording(NullSpaceTracking):
             np.testing.assert_array_equal(self.N[idx_y], np.column_stack([0 * idx_y, np.ones(len(idx_y)), x[idx_x]]))
         self.anchored += 1
 
-    def constrain(self, cols, H):
-        H = super().constrain(cols, H)
+    def constrain(self, cols, H, x=None):
+        cols, H = super().constrain(cols, H, x)
         self.jacobians.append((H, self.N[cols].copy()))
-        return H
+        return cols, H
 
 
 class RecordedOC(Recording, CompressedEKF):

@@ -100,10 +100,15 @@ class Estimator(Protocol):
     def window(self, rows: np.ndarray | None = None) -> CovarianceWindow:
         """The prior on working ``rows`` (sorted, the pose first; all when None)."""
 
-    def constrain(self, cols: np.ndarray, H: np.ndarray) -> np.ndarray:
-        """The Jacobian (m, c) on ``cols`` this estimator linearises with, from the model's
-        H (m, c): H itself for the EKF, its projection for the observability-constrained
-        EKF (:mod:`bsslam.slam.oc_ekf`). The filter gates, iterates and updates with it."""
+    def constrain(self, cols: np.ndarray, H: np.ndarray, x: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """``(cols', H')``: the Jacobian this estimator linearises with, from the model's H
+        (m, c) on ``cols`` linearised at ``x`` (the mean when None): H itself for the EKF,
+        its projection for the observability-constrained EKF (:mod:`bsslam.slam.oc_ekf`),
+        H in the invariant error at the mean for the invariant EKF
+        (:mod:`bsslam.slam.invariant_ekf`, which may add the heading's column). The filter
+        gates, iterates and updates with it, and reads the variance of other functions of
+        the state (a spline's bend) through it."""
 
     def anchor(self, idx_x: np.ndarray, idx_y: np.ndarray) -> None:
         """A spline was refitted (extended): the entries ``idx_x``, ``idx_y`` (paired x and y
@@ -175,8 +180,9 @@ class CompressedEKF:
         self.joint.x[:3] = pose
         self.joint.transform_pose(F, Q_pose)
 
-    def constrain(self, cols: np.ndarray, H: np.ndarray) -> np.ndarray:
-        return H
+    def constrain(self, cols: np.ndarray, H: np.ndarray, x: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        return cols, H
 
     def anchor(self, idx_x: np.ndarray, idx_y: np.ndarray) -> None:
         pass

@@ -23,6 +23,7 @@ from bsslam.slam.association import Match, associate_curves, association_thresho
 from bsslam.slam.ekf import gate_threshold
 from bsslam.slam.enlarge import beam_points, extension_block, new_feature_block
 from bsslam.slam.estimator import CompressedEKF, Estimator
+from bsslam.slam.invariant_ekf import InvariantEKF
 from bsslam.slam.features import MapSpline, SplineFeature
 from bsslam.slam.measurement import RangeModel, laser_pose
 from bsslam.slam.motion import motion_noise
@@ -91,8 +92,9 @@ class SplineSLAM:
         map known, global position and heading are observable."""
         self.config = config or SLAMConfig()
         if estimator is None:
-            oc = self.config.estimator == "oc-ekf" and self.config.mode == "slam"
-            estimator = OCEKF if oc else CompressedEKF
+            slam_mode = self.config.mode == "slam"
+            estimator = {"oc-ekf": OCEKF, "invariant": InvariantEKF}.get(self.config.estimator, CompressedEKF) \
+                if slam_mode else CompressedEKF
         if initial_covariance is None:
             initial_covariance = np.diag(np.square(self.config.initial_pose_sigma))
         self.state: Estimator = estimator(np.asarray(initial_pose, dtype=float),
@@ -324,10 +326,11 @@ class SplineSLAM:
         lin = model.linearize(beams, curves, x, offset, report)
         if lin is None:
             return None
-        bends = model.bend_weights(beams, lin, curves, x, lambda idx, rows: window.innovation_variances(idx, rows, 0.0))
+        bends = model.bend_weights(beams, lin, curves, x,
+                                   lambda idx, rows: window.innovation_variances(*self.state.constrain(idx, rows, x), 0.0))
         lin = model.limit_along_splines(beams, lin, curves, bends)
-        H_c = self.state.constrain(lin.cols, lin.H_c)
-        return lin if H_c is lin.H_c else dataclasses.replace(lin, H_c=H_c)
+        cols, H_c = self.state.constrain(lin.cols, lin.H_c, x)
+        return lin if H_c is lin.H_c else dataclasses.replace(lin, cols=cols, H_c=H_c)
 
     def _gated(self, beams, lin, window, x0, work, offset, report: StepReport):
         """The beams whose innovations pass the gates, linearised at the first corrected

@@ -111,12 +111,12 @@ class NullSpaceTracking:
         self.move_pose(new, F_x, F_u @ Q @ F_u.T)
         self.N[:3] = pose_null_rows(new)
 
-    def constrain(self, cols: np.ndarray, H_c: np.ndarray) -> np.ndarray:
-        """H_c (m, c) on ``cols`` projected so that H* N[cols] = 0 (H_c itself when not
+    def constrain(self, cols: np.ndarray, H_c: np.ndarray, x: np.ndarray | None = None) -> np.ndarray:
+        """(cols, H_c (m, c) projected so that H* N[cols] = 0; H_c itself when not
         constrained)."""
         if not self.constrained:
-            return H_c
-        return project_out(H_c, self.N[cols])
+            return cols, H_c
+        return cols, project_out(H_c, self.N[cols])
 
     def anchor(self, idx_x: np.ndarray, idx_y: np.ndarray) -> None:
         """The rows of control points (x entries ``idx_x``, y entries ``idx_y``, paired) at

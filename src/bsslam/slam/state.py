@@ -383,6 +383,38 @@ class JointState:
         self._P[:n, eager] = R.T
         self._reset()
 
+    def add_outer(self, U: np.ndarray, M: np.ndarray) -> None:
+        """P ← P + U M Uᵀ for U (n, r) and a symmetric M (r, r), deferred like an update:
+        U's lazy rows join the basis as r new (unregistered) columns with −M in G, its eager
+        rows go into K and the eager block. O(n·r + a·|E|·r); folds first when the basis has
+        no room."""
+        U = np.asarray(U, dtype=float)
+        M = np.asarray(M, dtype=float)
+        n, r = self.size, U.shape[1]
+        if U.shape[0] != n or M.shape != (r, r):
+            raise FilterError(f"add_outer: U {U.shape} / M {M.shape} do not fit n={n}")
+        if self._a + r > min(self._B.shape[1], n):
+            self.fold()
+            if self._a + r > min(self._B.shape[1], n):   # wider than the basis: into the base
+                V = U @ M
+                self.base[:] += 0.5 * (V @ U.T + U @ V.T)
+                self._reset()
+                return
+        a0, a, e = self._a, self._a + r, self._e
+        eager = self._E[:e]
+        U_E = U[eager]
+        self._B[:n, a0:a] = U
+        self._B[eager, a0:a] = 0.0        # eager rows of the basis are zero
+        self._G[a0:a, : a] = 0.0
+        self._G[: a, a0:a] = 0.0
+        self._G[a0:a, a0:a] = -0.5 * (M + M.T)
+        self._K[a0:a, :e] = M @ U_E.T
+        T = U_E @ M @ U_E.T
+        self._PE[:e, :e] += 0.5 * (T + T.T)
+        self._a = a
+        self._pending = True
+        self._forget_pending_rows()
+
     def transform_pose(self, F: np.ndarray, Q: np.ndarray) -> None:
         """The prediction's P ← A P Aᵀ + Q on the pose, A the identity with F (3, 3) on
         the pose block, Q (3, 3): O(|E| + a), the pose being eager (its places are 0, 1, 2)."""

@@ -1,0 +1,131 @@
+"""The invariant EKF: the paper's EKF with its covariance carried along each correction of
+the mean as the invariant error prescribes (after Barrau and Bonnabel, "An EKF-SLAM
+algorithm with consistency properties", 2015/16).
+
+Moving the robot and every control point by one rigid motion of the plane changes no range.
+At an estimate x̂ those three directions are N(x̂): global x and y translation, and the
+rotation (heading 1, every position p moved by J p̂, J the quarter turn (x, y) → (−y, x)).
+Each of the paper's updates annihilates N at the estimate it linearises at, but the next
+update linearises elsewhere: together they inform the filter along directions nothing
+observes (the heading of a robot in the map it built; the walls of a corridor turning with
+it), and its NEES leaves the χ² band.
+
+The rigid motions act on SLAM states as a group, and its right-invariant error has the same
+unobservable directions at every estimate. To first order that error is
+``ξ = A(x̂)⁻¹ (x − x̂)``, ``A(x̂) = I + J x̂ e_φᵀ`` (the heading's share in every position):
+its covariance at x̂ is the ordinary one, and when the mean moves from x̂ to x̂⁺ the same
+ξ-covariance describes ``A(x̂⁺) A(x̂)⁻¹ = I + w e_φᵀ``, ``w = J (x̂⁺ − x̂)``, times it. So the
+invariant EKF is the paper's filter with three changes:
+
+* **after each update** the covariance is carried to the new mean: ``P ← A P Aᵀ`` with
+  ``w = J Δx̂`` (a rank-two term over the whole state, ``w aᵀ + a wᵀ + P_φφ w wᵀ``,
+  ``a = P[:, φ]``, deferred into the compressed covariance like the update itself);
+* **within an update**, a range linearised at x_l (the iterated update's iterates) has the
+  Jacobian ``H A(x̂ → x_l)``: the heading's column gains ``H J (x_l − x̂)``;
+* the Jacobian is first projected off N(x_l) (a no-op to rounding for the exact range
+  model; :mod:`bsslam.slam.bends` can break it), so ``H N(x_l) = 0`` for every update.
+
+Prediction and map growth are the paper's: its motion Jacobian is exactly
+``A(x̂_{k+1}) A(x̂_k)⁻¹``, and the maps from pose and control points to new control points
+commute with rigid motions (Φ's and Ψ's rows sum to one), so they carry N onto N already.
+Then the information the filter holds never grows along N(x̂) at the current estimate.
+
+Cost over the paper's filter: two more columns of the deferred covariance term per scan
+(it is folded into P a little more often) and O(n) for w.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bsslam.errors import FilterError
+from bsslam.slam.ekf import StackedGain
+from bsslam.slam.estimator import CompressedEKF, Innovation, Noise
+from bsslam.slam.oc_ekf import project_out
+
+HEADING = 2
+
+
+class InvariantEKF(CompressedEKF):
+    """The invariant EKF on the compressed state (see the module docstring). Implements
+    :class:`~bsslam.slam.estimator.Estimator`; appended entries are control points, their x
+    coordinates first, then their y coordinates in the same order."""
+
+    def __init__(self, pose: np.ndarray, pose_covariance: np.ndarray):
+        super().__init__(pose, pose_covariance)
+        # the other coordinate of each position entry and the sign of J there:
+        # (J v)_x = −v_y, (J v)_y = v_x; the heading has neither
+        self._mate = np.array([1, 0, 0], dtype=np.intp)
+        self._sign = np.array([-1.0, 1.0, 0.0])
+
+    def turn(self, v: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """J v on ``rows`` (all when None) of a state-sized vector v (m): (−v_y, v_x) on each
+        position entry, 0 on the heading."""
+        if rows is None:
+            return self._sign * v[self._mate]
+        rows = np.asarray(rows, dtype=np.intp)
+        return self._sign[rows] * v[self._mate[rows]]
+
+    def null_space(self, x: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """(c, 3) N(x) on ``cols``: global x, y translation and the rotation about the
+        origin (heading 1, positions J x, m per rad)."""
+        cols = np.asarray(cols, dtype=np.intp)
+        N = np.zeros((cols.shape[0], 3))
+        sign = self._sign[cols]
+        N[sign < 0, 0] = 1.0
+        N[sign > 0, 1] = 1.0
+        N[:, 2] = np.where(cols == HEADING, 1.0, self.turn(x, cols))
+        return N
+
+    def constrain(self, cols: np.ndarray, H: np.ndarray, x: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """(cols', H') for the model's H (m, c) on ``cols`` linearised at ``x`` (the mean
+        when None): H projected off N(x) when it has the pose's columns (a range's rows;
+        rows on the map alone, a spline's bend, are invariant), then H A(x̂ → x), whose
+        heading column (added when missing) gains H J (x − x̂)."""
+        cols = np.asarray(cols, dtype=np.intp)
+        H = np.array(H, dtype=float)
+        at = np.flatnonzero(cols == HEADING)
+        if x is not None and at.size:
+            H = project_out(H, self.null_space(x, cols))
+        if x is None:
+            return cols, H
+        if at.size == 0:
+            cols = np.concatenate([cols, [HEADING]])
+            H = np.concatenate([H, np.zeros((H.shape[0], 1))], axis=1)
+            at = np.array([cols.shape[0] - 1])
+        H[:, at[0]] += H @ self.turn(x - self.x, cols)
+        return cols, H
+
+    def update(self, cols: np.ndarray, H: np.ndarray, residual: np.ndarray, R: Noise,
+               gain: StackedGain | None = None) -> Innovation:
+        before = self.x.copy()
+        innovation = super().update(cols, H, residual, R, gain)
+        w = self.turn(self.x - before)
+        if np.any(w):
+            a = self.joint.columns(np.array([HEADING]))[:, 0]
+            M = np.array([[a[HEADING], 1.0], [1.0, 0.0]])
+            self.joint.add_outer(np.column_stack([w, a]), M)   # P ← A P Aᵀ, A = I + w e_φᵀ
+        return innovation
+
+    def move_pose(self, pose: np.ndarray, F: np.ndarray, Q_pose: np.ndarray) -> None:
+        raise FilterError("the invariant EKF predicts from odometry (predict) only")
+
+    def append(self, mean: np.ndarray, cols: np.ndarray, J: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        if np.asarray(mean).shape[0] % 2:
+            raise FilterError(f"new control points come as x, then y coordinates: got {np.asarray(mean).shape[0]}")
+        idx = super().append(mean, cols, J, noise)
+        q = idx.shape[0] // 2
+        self._mate = np.concatenate([self._mate, idx[q:], idx[:q]])
+        self._sign = np.concatenate([self._sign, -np.ones(q), np.ones(q)])
+        return idx
+
+    def remove(self, indices: np.ndarray) -> np.ndarray:
+        mapping = super().remove(indices)
+        keep = mapping >= 0
+        mate = mapping[self._mate[keep]]
+        self._sign = self._sign[keep]
+        if np.any(mate[self._sign != 0] < 0):
+            raise FilterError("a control point's x and y coordinates must be removed together")
+        self._mate = mate
+        return mapping
