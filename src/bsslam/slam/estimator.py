@@ -122,7 +122,8 @@ class Estimator(Protocol):
 
     def append(self, mean: np.ndarray, cols: np.ndarray, J: np.ndarray, noise: np.ndarray) -> np.ndarray:
         """New entries v = J x[cols] + w (k,), w ~ N(0, noise) independent of the state;
-        ``mean`` (k,) their values. Returns their (k,) state indices."""
+        ``mean`` (k,) their values: k/2 control points, their x coordinates first, then
+        their y coordinates in the same order. Returns their (k,) state indices."""
 
     def transform(self, idx: np.ndarray, T: np.ndarray) -> None:
         """x[idx] ← T x[idx], P ← A P Aᵀ (A the identity with T on the map block ``idx``)."""

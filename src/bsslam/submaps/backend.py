@@ -397,7 +397,12 @@ def carry_over(previous: SplineSLAM, local: SplineSLAM, radius_m: float, max_sta
     J[ix, 3 + ix], J[ix, 3 + iy] = c, s
     J[iy, 3 + ix], J[iy, 3 + iy] = -s, c
     cov = J @ P @ J.T
-    new = local.state.append(moved, np.empty(0, dtype=np.intp), np.empty((m, 0)), 0.5 * (cov + cov.T))
+    # the estimator takes new control points as all their x coordinates, then their y's
+    order = np.concatenate([ix, iy])
+    cov = cov[np.ix_(order, order)]
+    appended = local.state.append(moved[order], np.empty(0, dtype=np.intp), np.empty((m, 0)), 0.5 * (cov + cov.T))
+    new = np.empty_like(appended)
+    new[order] = appended                        # the state index of each entry of x
     for f, fx, fy in zip(near, xs, ys):
         g = SplineFeature(local.spline_map.new_id(), f.degree, f.knots.copy(), idx_x=new[fx], idx_y=new[fy],
                           observations=1)     # confirmed: the old submap's updates used it
