@@ -3,6 +3,8 @@ directions are one constant N_s, every range Jacobian it updates with annihilate
 prediction is the identity there, where the paper's EKF breaks that; its compressed form
 against the dense textbook EKF with the same change of coordinates; its NEES."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from dense_ekf import DenseEKF
@@ -100,13 +102,16 @@ class DenseInvariant(DenseEKF):
         return mapping
 
 
-def test_the_filter_on_the_dense_form_gives_the_same_run():
+@pytest.mark.parametrize("bends", [False, True])
+def test_the_filter_on_the_dense_form_gives_the_same_run(bends):
     """Thirty steps with map building (new splines, extensions) on the compressed invariant
-    EKF (its carried covariance deferred) and on the dense textbook form: the same poses,
-    covariances and map to rounding."""
+    EKF (its carried covariance deferred) and on the dense textbook form, with the paper's
+    update and with significant bends only (whose variances are read through the same
+    Jacobians): the same poses, covariances and map to rounding."""
     sim = SimConfig()
     frames = list(simulate(get_world("rounded-room"), sim, seed=3, steps=30))
     config = simulation_config(SLAMConfig(estimator="invariant"), sim)
+    config = config.replace(observation=dataclasses.replace(config.observation, significant_bends_only=bends))
     runs = [SplineSLAM(config, initial_pose=frames[0].odometry, estimator=e) for e in (None, DenseInvariant)]
     assert isinstance(runs[0].state, InvariantEKF)   # chosen by the configuration
     prev = frames[0].odometry
