@@ -2,6 +2,7 @@
 past 1000 state dimensions; then where the time of a scan goes at about 1000 dimensions.
 
     python benchmarks/bench_filter.py [--world NAME] [--steps N] [--repeats R] [--profile] [--defaults]
+                                      [--estimator ekf|oc-ekf|invariant]
 
 The default world is a 30 × 20 m corridor loop (3 m wide, rounded corners) driven twice:
 about 175 m of walls, so with knot spacing ρ = 0.2 m and no extension (the map grows by new
@@ -194,6 +195,8 @@ def main() -> None:
                     help="timing runs; each scan's least time over them is reported too (default 3)")
     ap.add_argument("--defaults", action="store_true",
                     help="default spline and mapping configuration in an 80 × 50 m corridor loop")
+    ap.add_argument("--estimator", default="ekf", choices=("ekf", "oc-ekf", "invariant"),
+                    help="the joint Gaussian's filter (default: the paper's EKF)")
     args = ap.parse_args()
     sim = SimConfig()
     if args.defaults:
@@ -204,7 +207,7 @@ def main() -> None:
                           mapping=MappingConfig(extend=False))
         world = large_corridor() if args.world == "large-corridor" else get_world(args.world)
         steps = args.steps
-    config = simulation_config(base, sim)
+    config = simulation_config(base.replace(estimator=args.estimator), sim)
     frames = list(simulate(world, sim, seed=0, steps=steps))
 
     before = reference_update_ms()

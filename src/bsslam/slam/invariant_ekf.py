@@ -103,7 +103,7 @@ class InvariantEKF(CompressedEKF):
         innovation = super().update(cols, H, residual, R, gain)
         w = self.turn(self.x - before)
         if np.any(w):
-            a = self.joint.columns(np.array([HEADING]))[:, 0]
+            a = self.joint.pose_column(HEADING)
             M = np.array([[a[HEADING], 1.0], [1.0, 0.0]])
             self.joint.add_outer(np.column_stack([w, a]), M)   # P ← A P Aᵀ, A = I + w e_φᵀ
         return innovation

@@ -383,6 +383,14 @@ class JointState:
         self._P[:n, eager] = R.T
         self._reset()
 
+    def pose_column(self, k: int) -> np.ndarray:
+        """(n,) P[:, k] for a pose entry k (0, 1, 2): the lazy rows are B_L K[:, k] (one
+        matrix-vector product on the basis, no gather), the eager rows P_EE[:, k]."""
+        n, a, e = self.size, self._a, self._e
+        out = self._B[:n, :a] @ self._K[:a, k]
+        out[self._E[:e]] = self._PE[:e, k]
+        return out
+
     def add_outer(self, U: np.ndarray, M: np.ndarray) -> None:
         """P ← P + U M Uᵀ for U (n, r) and a symmetric M (r, r), deferred like an update:
         U's lazy rows join the basis as r new (unregistered) columns with −M in G, its eager
