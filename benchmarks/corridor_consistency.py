@@ -1,7 +1,7 @@
 """Pose NEES of the paper's filter down long simulated corridors, the figure the consistency
 issue targets (time-averaged NEES ≤ 4.5), with each of the filter's options that bear on it.
 
-    python benchmarks/corridor_consistency.py [--seeds N]
+    python benchmarks/corridor_consistency.py [--seeds N] [--plot PNG]
 
 The two corridor loops of ``bench_filter.py`` (the global EKF, simulated odometry under the
 paper's motion model, no front end, no second pass: ``simulation_config``):
@@ -40,23 +40,64 @@ def setups() -> dict[str, tuple[SLAMConfig, object, int | None]]:
             "rho-0.2": (fine, large_corridor(), None)}
 
 
-def one(base: SLAMConfig, world, steps, estimator: str, extend: bool, seed: int,
-        bends: bool = False) -> tuple[float, float, float]:
-    """(time-averaged NEES, final position error m, final σ_φ rad) of one seeded run."""
+def run_errors(base: SLAMConfig, world, steps, estimator: str, extend: bool, seed: int, bends: bool = False):
+    """The pose errors (:func:`bsslam.eval.consistency.pose_errors`) of one seeded run."""
     sim = SimConfig()
     config = simulation_config(base.replace(estimator=estimator), sim).replace(backend="ekf")
     config = config.replace(mapping=dataclasses.replace(config.mapping, extend=extend),
                             observation=dataclasses.replace(config.observation, significant_bends_only=bends))
     data = simulate(world, sim, seed=seed, steps=steps)
-    errors = pose_errors(run_dataset(data, config, point_stride=0).estimate, data.ground_truth)
+    return pose_errors(run_dataset(data, config, point_stride=0).estimate, data.ground_truth)
+
+
+def one(base: SLAMConfig, world, steps, estimator: str, extend: bool, seed: int,
+        bends: bool = False) -> tuple[float, float, float]:
+    """(time-averaged NEES, final position error m, final σ_φ rad) of one seeded run."""
+    errors = run_errors(base, world, steps, estimator, extend, seed, bends)
     # step 0 has no uncertainty (it fixes the map frame)
     return float(np.mean(errors.nees[1:])), float(np.hypot(*errors.errors[-1, :2])), float(errors.sigmas[-1, 2])
+
+
+def plot(path: str, seeds: int) -> None:
+    """Pose NEES against the step down the 80 × 50 m loop at the defaults (extension on),
+    the paper's EKF beside the invariant EKF, each with the paper's update and with
+    significant bends only: every seed's run thin, their mean thick, the 95 % band of one
+    run's 3-dof NEES shaded."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from scipy.stats import chi2
+
+    base, world, steps = setups()["defaults"]
+    fig, axes = plt.subplots(1, 2, figsize=(13, 4.5), sharey=True)
+    for ax, estimator in zip(axes, ("ekf", "invariant")):
+        for bends, colour in ((False, "tab:red"), (True, "tab:blue")):
+            runs = np.array([run_errors(base, world, steps, estimator, True, seed, bends).nees[1:]
+                             for seed in range(seeds)])
+            for r in runs:
+                ax.plot(np.arange(1, r.size + 1), r, color=colour, lw=0.4, alpha=0.4)
+            ax.plot(np.arange(1, runs.shape[1] + 1), runs.mean(axis=0), color=colour, lw=1.6,
+                    label=f"{'significant bends only' if bends else 'paper update'} (mean {runs.mean():.1f})")
+        ax.axhspan(*chi2.ppf([0.025, 0.975], 3), color="0.85", zorder=0)
+        ax.set_yscale("log")
+        ax.set_title({"ekf": "the paper's EKF", "invariant": "invariant EKF"}[estimator])
+        ax.set_xlabel("step")
+        ax.legend(loc="upper left", fontsize=8)
+    axes[0].set_ylabel("pose NEES (3 dof)")
+    fig.suptitle(f"80 × 50 m corridor loop, defaults (ρ = 1 m, extension on), {seeds} seeds")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=3, help="runs per row (seeds 0 … N−1)")
+    ap.add_argument("--plot", metavar="PNG", help="instead of the table, draw the NEES over the steps of the "
+                    "defaults loop for the paper's EKF and the invariant EKF side by side")
     args = ap.parse_args()
+    if args.plot:
+        plot(args.plot, args.seeds)
+        return
     print(f"{'corridor':>9} {'estimator':>9} {'extension':>9} {'bends':>5} {'mean NEES':>10} {'min–max over runs':>18} "
           f"{'final error m':>14} {'final σ_φ rad':>14} {'s/run':>6}")
     for name, (base, world, steps) in setups().items():
