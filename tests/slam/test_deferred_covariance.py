@@ -269,3 +269,40 @@ def test_random_sequences_of_operations_equal_the_dense_covariance():
             assert_reads_match(state, dense, np.unique(np.concatenate([POSE, probe])))
         np.testing.assert_allclose(state.P, dense, atol=1e-10)
         np.testing.assert_array_equal(state.P, state.P.T)
+
+
+def test_a_symmetric_low_rank_term_is_deferred_exactly():
+    """P ← P + U M Uᵀ (the invariant EKF's carried covariance) between updates, with eager
+    entries present, until the basis overflows (a fold) and once wider than the whole basis:
+    every read and the folded P equal the dense covariance; the pose's column from the basis
+    equals the dense one."""
+    rng = np.random.default_rng(11)
+    n = 80
+    P = random_spd(rng, n)
+    state = JointState(np.zeros(3), P[:3, :3], capacity=4, max_pending=12)
+    state.append(np.zeros(n - 3), P[3:, :3], P[3:, 3:])
+    dense = P.copy()
+    probe = np.array([0, 1, 2, 7, 33, n - 1])
+    J = rng.normal(size=(4, 3)) * 0.3       # four eager entries from the pose
+    new = state.append_dependent(np.zeros(4), POSE, J, 0.01 * np.eye(4))
+    cross = J @ dense[:3]
+    dense = np.block([[dense, cross.T], [cross, J @ dense[:3, :3] @ J.T + 0.01 * np.eye(4)]])
+    probe = np.concatenate([probe, new])
+    for step in range(8):
+        cols = np.array([0, 1, 2, 10 + step, 40 + step])
+        W = rng.normal(size=(cols.size, 2)) * 0.05
+        state.subtract_column_update(cols, W)
+        dense = column_update(dense, cols, W)
+        U = rng.normal(size=(state.size, 2)) * 0.1
+        M = np.array([[0.3, 1.0], [1.0, 0.0]])
+        state.add_outer(U, M)
+        dense = dense + U @ M @ U.T
+        assert_reads_match(state, dense, probe)
+        np.testing.assert_allclose(state.pose_column(2), dense[:, 2], atol=1e-12)
+    U = rng.normal(size=(state.size, 20)) * 0.05    # wider than the basis: straight into the base
+    M = np.diag(rng.uniform(0.1, 1.0, 20))
+    state.add_outer(U, M)
+    dense = dense + U @ M @ U.T
+    assert_reads_match(state, dense, probe)
+    np.testing.assert_allclose(state.P, dense, atol=1e-12)
+    np.testing.assert_array_equal(state.P, state.P.T)
