@@ -134,3 +134,29 @@ def test_monte_carlo_heading_nees_stays_in_the_band():
     lower, upper = chi2.ppf([alpha / (2 * updates), 1 - alpha / (2 * updates)], runs) / runs
     inv = np.mean([heading_nees("invariant", s, sigma0, updates) for s in range(runs)], axis=0)
     assert np.all((inv >= lower) & (inv <= upper)), (inv, lower, upper)
+
+
+def test_a_pickled_filter_continues_bit_for_bit():
+    """A run's checkpoint pickles the filter: the invariant EKF's pairing of coordinates and
+    its deferred covariance come back, and the restored filter continues exactly like the
+    original."""
+    import pickle
+
+    sim = SimConfig()
+    frames = list(simulate(get_world("rounded-room"), sim, seed=4, steps=24))
+    config = simulation_config(SLAMConfig(estimator="invariant"), sim)
+    slam = SplineSLAM(config, initial_pose=frames[0].odometry)
+    prev = frames[0].odometry
+    deltas = []
+    for frame in frames:
+        deltas.append(between(prev, frame.odometry))
+        prev = frame.odometry
+    for delta, frame in zip(deltas[:12], frames[:12]):
+        slam.step(delta, frame.scan)
+    copy = pickle.loads(pickle.dumps(slam))
+    for delta, frame in zip(deltas[12:], frames[12:]):
+        slam.step(delta, frame.scan)
+        copy.step(delta, frame.scan)
+    assert isinstance(copy.state, InvariantEKF)
+    np.testing.assert_array_equal(copy.state.x, slam.state.x)
+    np.testing.assert_array_equal(copy.state.P, slam.state.P)
