@@ -6,6 +6,8 @@ augmented covariance written out), so the filter runs the same scenario on eithe
 
 import numpy as np
 
+from bsslam.se2 import between
+from bsslam.slam import SplineSLAM
 from bsslam.slam.estimator import Innovation
 from bsslam.trajectory import wrap_angle
 from motion_oracle import predict
@@ -151,3 +153,27 @@ class DenseEKF:
         mapping[keep] = np.arange(keep.sum())
         self.x, self.P = self.x[keep], self.P[np.ix_(keep, keep)]
         return mapping
+
+
+def run_in_lockstep(config, frames, estimators, pose_atol, covariance_atol, covariance_rtol, nis_rtol=None):
+    """The filter with ``config`` on each of ``estimators`` (Estimator classes; None: the
+    configured one) through the same simulated ``frames``, one step at a time, asserting at
+    every step the same beams and state size, the poses within ``pose_atol``, the pose
+    covariances within ``covariance_atol`` / ``covariance_rtol`` and, when ``nis_rtol`` is
+    given, the NIS. Returns (the filters, the first filter's reports)."""
+    runs = [SplineSLAM(config, initial_pose=frames[0].odometry, estimator=e) for e in estimators]
+    prev, first = frames[0].odometry, []
+    for frame in frames:
+        delta = between(prev, frame.odometry)
+        prev = frame.odometry
+        reports = [slam.step(delta, frame.scan) for slam in runs]
+        first.append(reports[0])
+        for other, report in zip(runs[1:], reports[1:]):
+            assert reports[0].beams_used == report.beams_used
+            assert reports[0].state_size == report.state_size
+            np.testing.assert_allclose(runs[0].pose, other.pose, atol=pose_atol)
+            np.testing.assert_allclose(runs[0].pose_covariance, other.pose_covariance, atol=covariance_atol,
+                                       rtol=covariance_rtol)
+            if nis_rtol is not None:
+                np.testing.assert_allclose(reports[0].nis, report.nis, rtol=nis_rtol)
+    return runs, first
