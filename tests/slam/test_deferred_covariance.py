@@ -15,6 +15,13 @@ def random_spd(rng, n):
     return A @ A.T / n + 0.1 * np.eye(n)
 
 
+def state_of(P, max_pending):
+    """A JointState holding the covariance P (n, n): the pose, then n − 3 appended entries."""
+    state = JointState(np.zeros(3), P[:3, :3], capacity=4, max_pending=max_pending)
+    state.append(np.zeros(P.shape[0] - 3), P[3:, :3], P[3:, 3:])
+    return state
+
+
 def column_update(dense, cols, W):
     Z = dense[:, cols] @ W
     return dense - Z @ Z.T
@@ -34,8 +41,7 @@ def test_pending_updates_read_and_fold_like_the_dense_covariance():
     rng = np.random.default_rng(7)
     n = 300   # more than one fold block of rows
     P = random_spd(rng, n)
-    state = JointState(np.zeros(3), P[:3, :3], capacity=4, max_pending=12)
-    state.append(np.zeros(n - 3), P[3:, :3], P[3:, 3:])
+    state = state_of(P, max_pending=12)
     dense = P.copy()
     probe = np.array([0, 1, 2, 17, 40, 299])
     # overlapping column sets fill the basis slowly, then overflow it (a fold), then one
@@ -63,8 +69,7 @@ def test_a_basis_shared_by_updates_stays_exact():
     rng = np.random.default_rng(9)
     n = 60
     P = random_spd(rng, n)
-    state = JointState(np.zeros(3), P[:3, :3], capacity=4, max_pending=64)
-    state.append(np.zeros(n - 3), P[3:, :3], P[3:, 3:])
+    state = state_of(P, max_pending=64)
     dense = P.copy()
     cols = np.array([0, 1, 2, 10, 11, 12, 13])
     for _ in range(6):   # the same columns: the basis does not grow
@@ -161,8 +166,7 @@ def test_reads_after_a_removal_are_the_dense_covariance_of_the_kept_entries():
     rng = np.random.default_rng(13)
     n = 40
     P = random_spd(rng, n)
-    state = JointState(np.zeros(3), P[:3, :3], capacity=4, max_pending=32)
-    state.append(np.zeros(n - 3), P[3:, :3], P[3:, 3:])
+    state = state_of(P, max_pending=32)
     cols = np.array([0, 1, 2, 10, 11, 25, 30])
     W = rng.normal(size=(cols.size, 4)) * 0.05
     state.subtract_column_update(cols, W)
@@ -279,8 +283,7 @@ def test_a_symmetric_low_rank_term_is_deferred_exactly():
     rng = np.random.default_rng(11)
     n = 80
     P = random_spd(rng, n)
-    state = JointState(np.zeros(3), P[:3, :3], capacity=4, max_pending=12)
-    state.append(np.zeros(n - 3), P[3:, :3], P[3:, 3:])
+    state = state_of(P, max_pending=12)
     dense = P.copy()
     probe = np.array([0, 1, 2, 7, 33, n - 1])
     J = rng.normal(size=(4, 3)) * 0.3       # four eager entries from the pose
