@@ -83,14 +83,13 @@ class InvariantEKF(CompressedEKF):
         when None): H projected off N(x) when it has the pose's columns (a range's rows;
         rows on the map alone, a spline's bend, are invariant), then H A(x̂ → x), whose
         heading column (added when missing) gains H J (x − x̂)."""
+        x = self.x if x is None else x
         cols = np.asarray(cols, dtype=np.intp)
         H = np.array(H, dtype=float)
         at = np.flatnonzero(cols == HEADING)
-        if x is not None and at.size:
+        if at.size:
             H = project_out(H, self.null_space(x, cols))
-        if x is None:
-            return cols, H
-        if at.size == 0:
+        else:
             cols = np.concatenate([cols, [HEADING]])
             H = np.concatenate([H, np.zeros((H.shape[0], 1))], axis=1)
             at = np.array([cols.shape[0] - 1])
@@ -112,8 +111,9 @@ class InvariantEKF(CompressedEKF):
         raise FilterError("the invariant EKF predicts from odometry (predict) only")
 
     def append(self, mean: np.ndarray, cols: np.ndarray, J: np.ndarray, noise: np.ndarray) -> np.ndarray:
-        if np.asarray(mean).shape[0] % 2:
-            raise FilterError(f"new control points come as x, then y coordinates: got {np.asarray(mean).shape[0]}")
+        k = np.asarray(mean).shape[0]
+        if k % 2:
+            raise FilterError(f"new control points come as x, then y coordinates: got {k} entries")
         idx = super().append(mean, cols, J, noise)
         q = idx.shape[0] // 2
         self._mate = np.concatenate([self._mate, idx[q:], idx[:q]])

@@ -111,7 +111,8 @@ class NullSpaceTracking:
         self.move_pose(new, F_x, F_u @ Q @ F_u.T)
         self.N[:3] = pose_null_rows(new)
 
-    def constrain(self, cols: np.ndarray, H_c: np.ndarray, x: np.ndarray | None = None) -> np.ndarray:
+    def constrain(self, cols: np.ndarray, H_c: np.ndarray, x: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
         """(cols, H_c (m, c) projected so that H* N[cols] = 0; H_c itself when not
         constrained)."""
         if not self.constrained:
