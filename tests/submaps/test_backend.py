@@ -72,6 +72,30 @@ def test_the_second_lap_closes_loops_and_the_map(double_loop):
     assert nees < chi2.ppf(0.9973, 3), (nees, e_world)
 
 
+@pytest.mark.parametrize("seed", [
+    pytest.param(4, marks=pytest.mark.xfail(strict=True, reason=(
+        "known inconsistency (README, Limits): a wall mapped twice at the top-left rounded corner in one submap "
+        "(a new spline instead of an extension), carried into the next; when the robot sees the corner again "
+        "the two copies disagree by 0.2 m along the top wall and the update shifts the other walls with them; "
+        "the seam and its loop closures are then 0.2 m off with a 2 cm σ (final NEES ~1800)"))),
+    pytest.param(5, marks=pytest.mark.xfail(strict=True, reason=(
+        "the same mechanism, milder: final NEES ~57 against a bound of 14"))),
+])
+def test_the_final_pose_is_within_its_covariance_on_other_noise_draws(seed):
+    """The property of :func:`test_the_second_lap_closes_loops_and_the_map` on other noise
+    draws. Strict xfail: it documents a known failure and fails as soon as the cause is
+    fixed, so that the mark is removed."""
+    data = simulate(get_world("rounded-room"), SimConfig(), seed=seed)
+    mapper = Mapper(_config())
+    for frame in data:
+        mapper.add_frame(frame)
+    result = mapper.finish(ground_truth=data.ground_truth)
+    est, truth = result.trajectory, data.ground_truth
+    e = est.poses[-1] - truth.poses[-1]
+    e[2] = np.remainder(e[2] + np.pi, 2 * np.pi) - np.pi
+    assert float(e @ np.linalg.solve(est.covariances[-1], e)) < chi2.ppf(0.9973, 3)
+
+
 def test_live_memory_is_counted_and_within_the_budget(double_loop):
     """The live bytes are the local filter's buffers plus the frozen submaps' arrays; the
     local's are bounded by max_state_size whatever the length of the run."""
