@@ -49,3 +49,26 @@ def test_values_json_cannot_hold_are_type_errors():
         dumps_indented({"a": [object()]}, 1)
     with pytest.raises(TypeError):
         dumps_indented({(1, 2): 0}, 1)
+
+
+ARRAYS = [np.random.default_rng(2).normal(size=(7, 4)), np.array([1.0, -0.0, 1e22, 2.5e-300, 0.1]),
+          np.arange(6).reshape(2, 3), np.arange(5, dtype=np.uint8), np.zeros((0, 2)), np.zeros((2, 0)),
+          np.zeros(0), np.array(3.5), np.array([[True, False]]), np.ones((2, 2, 2)),
+          np.array([1.5, 2.25], dtype=np.float32), np.asfortranarray(np.arange(12.0).reshape(3, 4))[:, ::2]]
+
+
+@pytest.mark.parametrize("indent", [0, 1, 2])
+@pytest.mark.parametrize("array", ARRAYS, ids=range(len(ARRAYS)))
+def test_numpy_arrays_are_written_as_their_lists(array, indent):
+    document = {"a": array, "nested": [array, {"b": array}]}
+    as_lists = {"a": array.tolist(), "nested": [array.tolist(), {"b": array.tolist()}]}
+    assert dumps_indented(document, indent) == json.dumps(as_lists, indent=indent, allow_nan=False)
+
+
+@pytest.mark.parametrize("bad", [np.array([1.0, np.nan]), np.array([[1.0], [-np.inf]])])
+def test_non_finite_arrays_are_refused_like_the_json_module(bad):
+    with pytest.raises(ValueError) as ours:
+        dumps_indented({"x": bad}, 1)
+    with pytest.raises(ValueError) as theirs:
+        json.dumps({"x": bad.tolist()}, indent=1, allow_nan=False)
+    assert str(ours.value) == str(theirs.value)
