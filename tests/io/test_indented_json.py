@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from bsslam.io.indented_json import dumps_indented
+from bsslam.io.indented_json import dumps_compact, dumps_indented
 
 DOCUMENTS = [
     {"a": [1.0, 2.5e-300, -0.0, 1e22, 0.1], "b": {"c": [], "d": {}, "e": None, "f": True, "g": 'héllo\n"x',
@@ -72,3 +72,16 @@ def test_non_finite_arrays_are_refused_like_the_json_module(bad):
     with pytest.raises(ValueError) as theirs:
         json.dumps({"x": bad.tolist()}, indent=1, allow_nan=False)
     assert str(ours.value) == str(theirs.value)
+
+
+@pytest.mark.parametrize("array", ARRAYS + [np.array([1.0, np.nan, -np.inf])], ids=range(len(ARRAYS) + 1))
+def test_compact_text_is_json_dumps_of_the_lists(array):
+    document = {"a": array, "nested": [array, {"b": array, "c": (1, "é", None, 2.5)}], "d": {1: 2}}
+    as_lists = {"a": array.tolist(), "nested": [array.tolist(), {"b": array.tolist(), "c": (1, "é", None, 2.5)}],
+                "d": {1: 2}}
+    assert dumps_compact(document) == json.dumps(as_lists)
+
+
+@pytest.mark.parametrize("document", DOCUMENTS)
+def test_compact_text_of_documents_without_arrays(document):
+    assert dumps_compact(document) == json.dumps(document)
