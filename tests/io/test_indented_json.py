@@ -57,23 +57,6 @@ ARRAYS = [np.random.default_rng(2).normal(size=(7, 4)), np.array([1.0, -0.0, 1e2
           np.array([1.5, 2.25], dtype=np.float32), np.asfortranarray(np.arange(12.0).reshape(3, 4))[:, ::2]]
 
 
-@pytest.mark.parametrize("indent", [0, 1, 2])
-@pytest.mark.parametrize("array", ARRAYS, ids=range(len(ARRAYS)))
-def test_numpy_arrays_are_written_as_their_lists(array, indent):
-    document = {"a": array, "nested": [array, {"b": array}]}
-    as_lists = {"a": array.tolist(), "nested": [array.tolist(), {"b": array.tolist()}]}
-    assert dumps_indented(document, indent) == json.dumps(as_lists, indent=indent, allow_nan=False)
-
-
-@pytest.mark.parametrize("bad", [np.array([1.0, np.nan]), np.array([[1.0], [-np.inf]])])
-def test_non_finite_arrays_are_refused_like_the_json_module(bad):
-    with pytest.raises(ValueError) as ours:
-        dumps_indented({"x": bad}, 1)
-    with pytest.raises(ValueError) as theirs:
-        json.dumps({"x": bad.tolist()}, indent=1, allow_nan=False)
-    assert str(ours.value) == str(theirs.value)
-
-
 @pytest.mark.parametrize("array", ARRAYS + [np.array([1.0, np.nan, -np.inf])], ids=range(len(ARRAYS) + 1))
 def test_compact_text_is_json_dumps_of_the_lists(array):
     document = {"a": array, "nested": [array, {"b": array, "c": (1, "é", None, 2.5)}], "d": {1: 2}}

@@ -10,11 +10,6 @@ standard library's way, element by element.
 :func:`dumps_compact` is ``json.dumps(value)`` (its default separators, NaN allowed) of
 such documents holding numpy arrays: the C encoder would need them as nested lists, whose
 building costs more than the encoding.
-
-A numpy array of floats or ints (of any shape) is written as its ``tolist()`` would be,
-without building the nested lists: one ``repr`` per number over the flat array, one
-finiteness check for the whole array (a map's covariance blocks are ~150 000 numbers in
-thousands of short rows, where the per-row checks cost more than the numbers).
 """
 
 from __future__ import annotations
@@ -33,8 +28,7 @@ _SCALAR = json.JSONEncoder(allow_nan=False, indent=0)
 
 
 def dumps_indented(value: Any, indent: int) -> str:
-    """The text of ``json.dumps(value, indent=indent, allow_nan=False)``, numpy arrays
-    taken as their ``tolist()``.
+    """The text of ``json.dumps(value, indent=indent, allow_nan=False)``.
 
     Raises:
         ValueError: a float is NaN or infinite (as the json module does).
@@ -60,32 +54,7 @@ def _encode(value: Any, step: str, newline: str) -> str:
         numbers = _number_texts(value)
         parts = numbers if numbers is not None else [_encode(item, step, inner) for item in value]
         return "[" + inner + ("," + inner).join(parts) + newline + "]"
-    if isinstance(value, np.ndarray):
-        return _encode_array(value, step, newline)
     return _scalar(value)
-
-
-def _encode_array(a: np.ndarray, step: str, newline: str) -> str:
-    """``_encode(a.tolist(), ...)`` for a numpy array, the numbers of a non-empty 1-D or 2-D
-    float or integer array formatted in one pass."""
-    if a.dtype.kind not in "fiu" or a.ndim not in (1, 2) or a.size == 0:
-        return _encode(a.tolist(), step, newline)
-    flat = a.ravel().tolist()                          # Python floats or ints, as tolist()
-    if a.dtype.kind == "f":
-        if not np.all(np.isfinite(a)):
-            bad = next(v for v in flat if not math.isfinite(v))
-            raise ValueError(f"Out of range float values are not JSON compliant: {bad!r}")
-        texts = list(map(float.__repr__, flat))
-    else:
-        texts = list(map(int.__repr__, flat))
-    inner = newline + step
-    if a.ndim == 1:
-        return "[" + inner + ("," + inner).join(texts) + newline + "]"
-    row_inner = inner + step
-    width = a.shape[1]
-    rows = ["[" + row_inner + ("," + row_inner).join(texts[i:i + width]) + inner + "]"
-            for i in range(0, len(texts), width)]
-    return "[" + inner + ("," + inner).join(rows) + newline + "]"
 
 
 def _scalar(value: Any) -> str:

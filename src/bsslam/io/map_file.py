@@ -103,10 +103,9 @@ def write_map_json(target: PathOrFile, splines: Iterable[Any],
             "id": int(spline.id),
             "order": degree + 1,
             "degree": degree,
-            # the arrays themselves: dumps_indented writes them as their lists, faster
-            "knots": knots,
-            "control_points": points,
-            "covariance": cov,
+            "knots": knots.tolist(),
+            "control_points": points.tolist(),
+            "covariance": None if cov is None else cov.tolist(),
         })
         # the submap backend's: the submap a spline was mapped in (its covariance is
         # relative to that submap's base) and the surface it shares with other submaps
