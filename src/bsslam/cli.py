@@ -84,11 +84,11 @@ class _CommandLine(typer.Typer):
 
 
 def _exit_now(code) -> None:
-    """What ``sys.exit(code)`` ends with, minus the teardown: the ``atexit`` handlers, the
-    code (a non-integer printed to stderr, exit status 1) and the flushed streams."""
+    """What ``sys.exit(code)`` ends with, in its order, minus the teardown: the code (a
+    non-integer printed to stderr, exit status 1), the ``atexit`` handlers, the flushed
+    streams."""
     import atexit
 
-    atexit._run_exitfuncs()
     if code is None:
         status = 0
     elif isinstance(code, int):
@@ -96,6 +96,7 @@ def _exit_now(code) -> None:
     else:
         print(code, file=sys.stderr)
         status = 1
+    atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
