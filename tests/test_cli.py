@@ -408,3 +408,24 @@ def test_a_signal_whose_interrupt_was_swallowed_is_delivered_by_the_next_progres
         with pytest.raises(KeyboardInterrupt, match="SIGTERM"):
             update(1)
         update(2)                    # delivered once
+
+
+@pytest.mark.parametrize("argv, status, stream, text", [
+    (["--help"], 0, "stdout", "Usage"),
+    (["run", "/no/such/log.clf"], 2, "stderr", "no such file"),
+])
+def test_the_command_exits_with_its_status_its_output_and_the_atexit_handlers(argv, status, stream, text):
+    # the command line's app() skips the interpreter's teardown: what it prints, the exit
+    # status and the atexit handlers (logging, rerun, temporary folders) must survive that
+    import subprocess
+    import sys
+
+    code = ("import atexit, sys\n"
+            "atexit.register(lambda: print('atexit ran', file=sys.stderr))\n"
+            "from bsslam.cli import app\n"
+            f"sys.argv = ['bsslam'] + {argv!r}\n"
+            "app()\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == status, done.stderr
+    assert text.lower() in getattr(done, stream).lower()
+    assert done.stderr.rstrip().endswith("atexit ran")

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from bsslam.io.indented_json import dumps_indented
+from bsslam.io.indented_json import dumps_compact, dumps_indented
 
 DOCUMENTS = [
     {"a": [1.0, 2.5e-300, -0.0, 1e22, 0.1], "b": {"c": [], "d": {}, "e": None, "f": True, "g": 'héllo\n"x',
@@ -49,3 +49,22 @@ def test_values_json_cannot_hold_are_type_errors():
         dumps_indented({"a": [object()]}, 1)
     with pytest.raises(TypeError):
         dumps_indented({(1, 2): 0}, 1)
+
+
+ARRAYS = [np.random.default_rng(2).normal(size=(7, 4)), np.array([1.0, -0.0, 1e22, 2.5e-300, 0.1]),
+          np.arange(6).reshape(2, 3), np.arange(5, dtype=np.uint8), np.zeros((0, 2)), np.zeros((2, 0)),
+          np.zeros(0), np.array(3.5), np.array([[True, False]]), np.ones((2, 2, 2)),
+          np.array([1.5, 2.25], dtype=np.float32), np.asfortranarray(np.arange(12.0).reshape(3, 4))[:, ::2]]
+
+
+@pytest.mark.parametrize("array", ARRAYS + [np.array([1.0, np.nan, -np.inf])], ids=range(len(ARRAYS) + 1))
+def test_compact_text_is_json_dumps_of_the_lists(array):
+    document = {"a": array, "nested": [array, {"b": array, "c": (1, "é", None, 2.5)}], "d": {1: 2}}
+    as_lists = {"a": array.tolist(), "nested": [array.tolist(), {"b": array.tolist(), "c": (1, "é", None, 2.5)}],
+                "d": {1: 2}}
+    assert dumps_compact(document) == json.dumps(as_lists)
+
+
+@pytest.mark.parametrize("document", DOCUMENTS)
+def test_compact_text_of_documents_without_arrays(document):
+    assert dumps_compact(document) == json.dumps(document)

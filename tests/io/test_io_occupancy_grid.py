@@ -127,6 +127,23 @@ def test_a_cell_takes_one_update_per_scan_and_a_return_wins_over_a_pass_through(
     assert _log_odds_at(grid, (1.55, 0.05)) == pytest.approx(1.5)
 
 
+def test_a_run_in_several_beam_batches_gives_the_grid_of_one_batch(monkeypatch):
+    # the extent pass keeps the batch when there is one; in several, both passes make them
+    import functools
+
+    import bsslam.io.grid as grid_module
+
+    rng = np.random.default_rng(3)
+    angles = np.linspace(-1.5, 1.5, 7)
+    scans = [(_scan(rng.uniform(0.5, 4.0, 7), angles), np.array([0.1, 0.0, 0.05])) for _ in range(9)]
+    poses = np.column_stack([np.linspace(0.0, 2.0, 9), rng.uniform(-0.2, 0.2, 9), rng.uniform(-0.5, 0.5, 9)])
+    one = build_occupancy_grid(scans, poses, CONFIG)
+    monkeypatch.setattr(grid_module, "_beam_batches", functools.partial(grid_module._beam_batches, batch_beams=10))
+    several = build_occupancy_grid(scans, poses, CONFIG)
+    assert several.origin == one.origin
+    np.testing.assert_array_equal(several.log_odds, one.log_odds)
+
+
 def test_footprints_are_free_and_curves_occupied():
     config = dataclasses.replace(CONFIG, footprint_radius_m=0.25)
     wall = np.array([[1.0, -1.0], [1.0, 1.0]])

@@ -184,7 +184,9 @@ def build_occupancy_grid(scans: Sequence, poses: np.ndarray, config: GridConfig,
     res = config.resolution_m
     occ_starts, occ_ends = _polyline_segments(polylines)
     low, high = np.full(2, np.inf), np.full(2, -np.inf)
-    for batch in _beam_batches(scans, poses, config):
+    only = None     # the batch, when there is one (most runs): not computed twice
+    for count, batch in enumerate(_beam_batches(scans, poses, config)):
+        only = batch if count == 0 else None
         for pts in (batch.origins[np.diff(batch.beam_start) > 0], batch.ends):
             if len(pts):
                 low, high = np.minimum(low, pts.min(axis=0)), np.maximum(high, pts.max(axis=0))
@@ -205,7 +207,7 @@ def build_occupancy_grid(scans: Sequence, poses: np.ndarray, config: GridConfig,
     width, height = int(size[0]), int(size[1])
     log_odds = np.zeros((height, width), dtype=np.float32)     # y-up while building
     stamp = np.full((height, width), -1, dtype=np.int32)   # 2s + 1 < 2³¹: at most ~10⁹ scans
-    for batch in _beam_batches(scans, poses, config):
+    for batch in [only] if only is not None else _beam_batches(scans, poses, config):
         integrate_scans(log_odds, stamp, batch.first_scan, (batch.origins - low) / res, batch.beam_start,
                         (batch.ends - low) / res, batch.hit, np.float32(config.log_odds_hit),
                         np.float32(config.log_odds_miss), np.float32(config.log_odds_limit))

@@ -6,6 +6,10 @@ number (CPython 3.11's C encoder only does compact output): a map's hundreds of 
 of numbers took most of a second. Here a list of plain floats or ints is one ``join`` of
 their ``repr`` (what the json module writes for them); everything else goes the
 standard library's way, element by element.
+
+:func:`dumps_compact` is ``json.dumps(value)`` (its default separators, NaN allowed) of
+such documents holding numpy arrays: the C encoder would need them as nested lists, whose
+building costs more than the encoding.
 """
 
 from __future__ import annotations
@@ -14,6 +18,10 @@ import json
 import math
 from typing import Any
 
+import numpy as np
+
+# json.dumps' defaults: ", " and ": " separators, NaN and infinities allowed, ASCII
+_COMPACT = json.JSONEncoder()
 # An indent makes the encoder the pure-Python one, whose error messages (naming the bad
 # float) are those of the indented text; a scalar's text does not depend on it.
 _SCALAR = json.JSONEncoder(allow_nan=False, indent=0)
@@ -87,3 +95,33 @@ def _key(key: Any) -> str:
         return json.encoder.encode_basestring_ascii(key)
     text = _SCALAR.encode({key: 0})      # the json module's conversion and errors
     return text[2:text.rindex(":")]
+
+
+def dumps_compact(value: Any) -> str:
+    """The text of ``json.dumps(value)``, numpy arrays taken as their ``tolist()``.
+
+    Raises:
+        TypeError: a value JSON cannot hold.
+    """
+    if isinstance(value, np.ndarray):
+        return _compact_array(value)
+    if isinstance(value, dict) and all(type(key) is str for key in value):
+        return "{" + ", ".join(json.encoder.encode_basestring_ascii(key) + ": " + dumps_compact(item)
+                               for key, item in value.items()) + "}"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(map(dumps_compact, value)) + "]"
+    return _COMPACT.encode(value)     # scalars, and dicts with other keys (holding no arrays)
+
+
+def _compact_array(a: np.ndarray) -> str:
+    """``json.dumps(a.tolist())``, the numbers of a non-empty, finite 1-D or 2-D float or
+    integer array formatted in one pass (NaN and infinities go the json module's way)."""
+    if (a.dtype.kind not in "fiu" or a.ndim not in (1, 2) or a.size == 0
+            or (a.dtype.kind == "f" and not np.all(np.isfinite(a)))):
+        return _COMPACT.encode(a.tolist())
+    flat = a.ravel().tolist()
+    texts = list(map(float.__repr__ if a.dtype.kind == "f" else int.__repr__, flat))
+    if a.ndim == 1:
+        return "[" + ", ".join(texts) + "]"
+    width = a.shape[1]
+    return "[[" + "], [".join(", ".join(texts[i:i + width]) for i in range(0, len(texts), width)) + "]]"

@@ -20,13 +20,13 @@ as a local projected (engineering) system.
 
 from __future__ import annotations
 
-import json
 import math
 from typing import Iterable, Protocol
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
+from bsslam.io.indented_json import dumps_compact
 from bsslam.io.path_or_file import PathOrFile, open_path_or_file
 from bsslam.spline import BSplineCurve
 
@@ -157,29 +157,38 @@ def map_geojson(splines: Iterable[MapFeature], step_m: float = 0.02) -> dict:
     """The map as a GeoJSON FeatureCollection (a dict): one LineString per spline through
     curve points about ``step_m`` apart, every knot among them (m, map frame); see
     :func:`sampled_runs`."""
+    return _geojson(splines, step_m, np.ndarray.tolist)
+
+
+def _geojson(splines: Iterable[MapFeature], step_m: float, numbers) -> dict:
+    """:func:`map_geojson` with each array of numbers given as ``numbers(array)`` (its list,
+    or the array itself for :func:`~bsslam.io.indented_json.dumps_compact`)."""
     features = []
     for f in splines:
         curve = _curve(f)
         runs = sampled_runs(curve, step_m)
-        geometry = ({"type": "LineString", "coordinates": runs[0].tolist()} if len(runs) == 1 else
-                    {"type": "MultiLineString", "coordinates": [run.tolist() for run in runs]})
+        geometry = ({"type": "LineString", "coordinates": numbers(runs[0])} if len(runs) == 1 else
+                    {"type": "MultiLineString", "coordinates": [numbers(run) for run in runs]})
         features.append({
             "type": "Feature",
             "id": int(f.id),
             "geometry": geometry,
-            "properties": {"id": int(f.id), "degree": int(curve.degree), "knots": curve.knots.tolist(),
-                           "control_points": curve.control_points.tolist()},
+            "properties": {"id": int(f.id), "degree": int(curve.degree), "knots": numbers(curve.knots),
+                           "control_points": numbers(curve.control_points)},
         })
     return {"type": "FeatureCollection",
             "frame": {"units": "m", "axes": "x, y of the run's map frame (the first pose), not WGS 84"},
             "features": features}
 
 
+def _same(array: np.ndarray) -> np.ndarray:
+    return array
+
+
 def write_map_geojson(target: PathOrFile, splines: Iterable[MapFeature], step_m: float = 0.02) -> None:
     """Write :func:`map_geojson` to a path or text file."""
-    # json.dumps, not json.dump: only a one-shot encoding uses the C encoder (json.dump
-    # runs the pure-Python one, ~10x slower on a map's hundreds of thousands of numbers);
-    # the text is the same
-    text = json.dumps(map_geojson(splines, step_m))
+    # json.dumps' text, the arrays formatted whole: building the nested lists for the C
+    # encoder took as long as the encoding (json.dump, the pure-Python encoder, 10x more)
+    text = dumps_compact(_geojson(splines, step_m, _same))
     with open_path_or_file(target, "w") as f:
         f.write(text + "\n")
