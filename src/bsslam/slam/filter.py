@@ -76,6 +76,11 @@ class StepReport:
             self.beams_dropped[reason] = self.beams_dropped.get(reason, 0) + int(count)
 
 
+#: The estimator of each ``SLAMConfig.estimator`` name (full SLAM; localisation in a given
+#: map always uses the EKF).
+_ESTIMATORS = {"ekf": CompressedEKF, "oc-ekf": OCEKF, "invariant": InvariantEKF}
+
+
 class SplineSLAM:
     """EKF-SLAM with B-spline features, usable from Python without the CLI.
 
@@ -92,9 +97,7 @@ class SplineSLAM:
         map known, global position and heading are observable."""
         self.config = config or SLAMConfig()
         if estimator is None:
-            slam_mode = self.config.mode == "slam"
-            estimator = {"oc-ekf": OCEKF, "invariant": InvariantEKF}.get(self.config.estimator, CompressedEKF) \
-                if slam_mode else CompressedEKF
+            estimator = _ESTIMATORS[self.config.estimator] if self.config.mode == "slam" else CompressedEKF
         if initial_covariance is None:
             initial_covariance = np.diag(np.square(self.config.initial_pose_sigma))
         self.state: Estimator = estimator(np.asarray(initial_pose, dtype=float),
