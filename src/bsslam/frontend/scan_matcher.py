@@ -281,8 +281,6 @@ class _SearchGrid:
         fine_rot: (f,) fine rotations relative to a coarse candidate (rad).
         fine_half: the fine offsets are ``_offset_grid(fine_half, 1)`` (fine cells);
             fine_offsets_m (t', 2) in m.
-        near_offsets: (t, t) bool, the coarse offsets closer than two coarse steps (the
-            neighbourhood of a coarse maximum, :func:`_distinct_maxima`).
         rot_poses: (r, 3) poses (0, 0, rot_steps): the coarse poses less the guess.
         fine_trans_prior: (t, t') the translation part of the quadratic penalty (without
             the weight) of fine offset t' around coarse offset t.
@@ -298,7 +296,6 @@ class _SearchGrid:
     fine_rot: np.ndarray
     fine_half: int
     fine_offsets_m: np.ndarray
-    near_offsets: np.ndarray
     fine_trans_prior: np.ndarray
     fine_rot_prior: np.ndarray
 
@@ -322,9 +319,9 @@ def _search_grid(cfg: FrontendConfig, res_c: float, res_f: float) -> _SearchGrid
     trans = (dx * dx + dy * dy) / (2 * cfg.search_window_m ** 2)
     rot = (rot_steps[:, None] + fine_rot[None, :]) ** 2 / (2 * cfg.search_window_rad ** 2)
     grid = _SearchGrid(rot_steps, half_c, step_c, offsets, offsets_m, penalty, fine_rot, half_f,
-                       fine_offsets_m, _near_offsets(offsets, 2 * step_c), trans, rot)
+                       fine_offsets_m, trans, rot)
     for a in (grid.rot_steps, grid.offsets, grid.offsets_m, grid.coarse_penalty, grid.fine_rot, grid.fine_offsets_m,
-              grid.near_offsets, grid.fine_trans_prior, grid.fine_rot_prior):
+              grid.fine_trans_prior, grid.fine_rot_prior):
         a.flags.writeable = False          # shared between calls
     return grid
 
@@ -487,7 +484,7 @@ class ReferenceMap:
         # Quadratic tie-break towards the guess: −w at the window's corner.
         score = score - grid.coarse_penalty
         candidates = _distinct_maxima(score, cfg.coarse_candidates, rot_sep=2, off=grid.offsets,
-                                      off_sep=2 * grid.coarse_step, near_off=grid.near_offsets, overwrite=True)
+                                      off_sep=2 * grid.coarse_step, overwrite=True)
         cand_rot, cand_off = (list(c) for c in zip(*candidates))
         # Fine level: ±1 coarse step (rotation and translation) around each candidate: the
         # blurred coarse peak can sit a whole step from the true one.
@@ -537,7 +534,7 @@ class ReferenceMap:
                    poses[:, 2:3])] = -np.inf
         # _distinct_maxima stops at the first −inf: every candidate is distinct from best.
         candidates = _distinct_maxima(score, cfg.coarse_candidates, rot_sep=2, off=grid.offsets,
-                                      off_sep=2 * grid.coarse_step, near_off=grid.near_offsets, overwrite=True)
+                                      off_sep=2 * grid.coarse_step, overwrite=True)
         if not candidates:
             return guess.copy(), 0.0
         cand_rot, cand_off = (np.array(c) for c in zip(*candidates))
@@ -707,24 +704,30 @@ class ReferenceMap:
 
 
 def _distinct_maxima(score: np.ndarray, k: int, *, rot_sep: int, off: np.ndarray, off_sep: int,
-                     near_off: np.ndarray | None = None, overwrite: bool = False) -> list[tuple[int, int]]:
+                     overwrite: bool = False) -> list[tuple[int, int]]:
     """Up to ``k`` (rotation, offset) indices of the highest scores, each at least
     ``rot_sep`` rotation steps or ``off_sep`` cells from those already taken.
 
     Args:
         score: (r, t) scores (rotations × offsets); not modified unless ``overwrite``.
-        off: (t, 2) the offsets (cells) of the columns.
-        near_off: (t, t) bool, ``_near_offsets(off, off_sep)`` if already made.
+        off: (t, 2) the offsets (cells) of the columns: a square grid, x offset major, as
+            :func:`_offset_grid` makes it.
         overwrite: ``score`` is a float64 scratch array that may be used up.
 
     Greedy: take the highest remaining score, then knock out its neighbourhood (a band
-    of rotations × the offsets near it) and repeat; ``k`` argmax passes over the (r, t)
-    array instead of a full sort. Ties go to the lowest flat index.
+    of rotations × the square of offsets near it) and repeat; ``k`` argmax passes over the
+    (r, t) array instead of a full sort. Ties go to the lowest flat index. The
+    neighbourhood is a block of the offset grid, so nothing of size t × t is made (a
+    loop closure's wide window has 10⁴ offsets).
     """
     left = score if overwrite else np.array(score, dtype=float)   # knocked-out entries become −inf
-    if near_off is None:
-        near_off = _near_offsets(off, off_sep)
+    left = np.ascontiguousarray(left)           # so that the views below write into it
     n_rot, n_off = left.shape
+    axis = np.unique(off[:, 1])                 # the grid's coordinates on either axis
+    width = axis.shape[0]
+    if width * width != n_off or not np.array_equal(off[:, 0], np.repeat(axis, width)):
+        raise ValueError("offsets must form a square grid, x offset major")
+    block = left.reshape(n_rot, width, width)
     flat = left.reshape(-1)
     taken: list[tuple[int, int]] = []
     for _ in range(min(k, flat.shape[0])):
@@ -733,14 +736,13 @@ def _distinct_maxima(score: np.ndarray, k: int, *, rot_sep: int, off: np.ndarray
             break
         r, t = divmod(j, n_off)
         taken.append((r, t))
-        # |rotation − r| < rot_sep: a band of rows.
-        left[max(r - rot_sep + 1, 0):max(r + rot_sep, 0), near_off[t]] = -np.inf
+        ix, iy = divmod(t, width)
+        # |rotation − r| < rot_sep: a band of rows; |offset − off[t]| < off_sep on both
+        # axes: a run of grid coordinates on each (the axis is sorted).
+        x0, x1 = np.searchsorted(axis, axis[ix] - off_sep, "right"), np.searchsorted(axis, axis[ix] + off_sep, "left")
+        y0, y1 = np.searchsorted(axis, axis[iy] - off_sep, "right"), np.searchsorted(axis, axis[iy] + off_sep, "left")
+        block[max(r - rot_sep + 1, 0):max(r + rot_sep, 0), x0:x1, y0:y1] = -np.inf
     return taken
-
-
-def _near_offsets(off: np.ndarray, off_sep: int) -> np.ndarray:
-    """(t, t) bool: offsets ``off`` (t, 2) less than ``off_sep`` cells apart on both axes."""
-    return np.max(np.abs(off[:, None, :] - off[None, :, :]), axis=2) < off_sep
 
 
 def match_scan(reference_points: np.ndarray, points: np.ndarray, guess: np.ndarray,
