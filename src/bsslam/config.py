@@ -545,8 +545,8 @@ class FrontendConfig:
         _check(self.max_range_m <= MAX_LASER_RANGE_M,
                f"frontend.max_range_m must be ≤ {MAX_LASER_RANGE_M:g} m (2D laser scanners reach ~80 m)")
         _check(self.search_window_m <= MAX_SEARCH_WINDOW_M,
-               f"frontend.search_window_m must be ≤ {MAX_SEARCH_WINDOW_M:g} m (the worst odometry error between "
-               f"scans of the real logs is ~0.46 m), got {self.search_window_m!r}")
+               f"frontend.search_window_m must be ≤ {MAX_SEARCH_WINDOW_M:g} m (the correlative search's ceiling; the "
+               f"worst odometry error between scans of the real logs is ~0.46 m), got {self.search_window_m!r}")
         _check(self.search_window_m / self.coarse_step_m <= MAX_STEPS_PER_WINDOW,
                f"frontend.search_window_m / coarse_step_m must be ≤ {MAX_STEPS_PER_WINDOW} (coarse offsets per side)")
         _check(self.search_window_rad / self.coarse_step_rad <= MAX_STEPS_PER_WINDOW,
@@ -567,7 +567,9 @@ class FrontendConfig:
 
 # ceilings of the front end's search (see FrontendConfig._check_ceilings)
 MAX_LASER_RANGE_M = 100.0
-MAX_SEARCH_WINDOW_M = 5.0
+#: the correlative search's window (m), a scan's or a loop closure's: its coarse level
+#: scores (2·window / coarse step)² offsets per heading
+MAX_SEARCH_WINDOW_M = 20.0
 MAX_STEPS_PER_WINDOW = 90
 MAX_FINE_PER_COARSE = 20
 MAX_FIELD_CELLS = 8000     # per side: 64 M float32 cells, 256 MB
@@ -653,8 +655,11 @@ class SubmapConfig:
             between the two submaps, as the pose graph's marginals give it.
         loop_min_window_m: … and at least this far in x and y (m), for drift larger than
             the filter admits;
-        loop_max_window_m: … and at most this far (m), bounding the search's cost (at
-            most the correlative search's 5 m, ``MAX_SEARCH_WINDOW_M``).
+        loop_max_window_m: … and at most this far (m), bounding the search's cost (which
+            grows with the window's area: about 1 s per candidate at 12 m; at most
+            ``MAX_SEARCH_WINDOW_M``). A window narrower than the drift cannot hold the true
+            alignment, and then a copy of the structure within it (a facade, a row of
+            trees) is what the search finds.
         loop_min_window_rad: the same bounds for the heading (rad).
         loop_max_window_rad:
         loop_max_candidates: old submaps matched against each newly frozen one, nearest
@@ -713,7 +718,7 @@ class SubmapConfig:
     carry_over_m: float = 10.0
     loop_sigmas: float = 3.0
     loop_min_window_m: float = 2.0
-    loop_max_window_m: float = 5.0
+    loop_max_window_m: float = 12.0
     loop_min_window_rad: float = math.radians(20.0)
     loop_max_window_rad: float = math.pi
     loop_max_candidates: int = 4

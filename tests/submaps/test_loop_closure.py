@@ -239,10 +239,30 @@ def test_random_offsets_within_the_window_are_recovered(overlapping, dx, dy, dph
     assert dist < 0.03 and turn < math.radians(1.0)
 
 
-@pytest.mark.parametrize("field, value", [("loop_max_window_m", 6.0), ("loop_inlier_distance_m", 2.0),
+@pytest.mark.parametrize("field, value", [("loop_max_window_m", 25.0), ("loop_inlier_distance_m", 2.0),
                                           ("loop_search_points", 10), ("loop_min_information_ratio", 1.5),
                                           ("loop_distinct_m", 0.0)])
 def test_config_bounds(field, value):
-    """The window is the correlative search's (≤ 5 m); the inlier gate within the overlap one."""
+    """The window is the correlative search's (≤ 20 m); the inlier gate within the overlap one."""
     with pytest.raises(ConfigError):
         SubmapConfig(**{field: value})
+
+
+def test_a_window_that_covers_the_drift_finds_the_truth_beside_a_partial_copy():
+    """The query sees a room; 8 m from it the reference holds a partial copy of the room
+    (two of its walls: a facade seen again), and the drift has put the guess on the copy.
+    A window that covers the drift holds both alignments, and the truth, which lays all
+    the query's walls on walls, wins; a window too narrow for the drift cannot see the
+    truth at all (campus: wrong loop closures 7–14 m off came from 5 m windows)."""
+    room = [_polyline((0, 0), (6, 0), (6, 5)), _polyline((6, 5), (0, 5), (0, 2.5)), _polyline((0, 1.5), (0, 0.2)),
+            _polyline((2, 3), (3.5, 3), (3.5, 4))]
+    copy = [_polyline((8, 0), (14, 0), (14, 5))]                   # the room's first walls, 8 m along x
+    ref_frame, query_frame = np.array([0.0, 0.0, 0.0]), np.array([3.0, 2.0, 0.3])
+    reference = _shape(room + copy, -1, 15, ref_frame)
+    query = _shape(room, -1, 7, query_frame)
+    truth = between(ref_frame, query_frame)
+    guess = compose(np.array([8.0, 0.0, 0.0]), compose(truth, np.array([0.3, -0.2, math.radians(2.0)])))
+    match = match_submaps(reference, query, guess, GUESS_COV, 10.0, math.radians(20.0), CONFIG)
+    assert match.ok, match
+    dist, turn = _error(match, truth)
+    assert dist < 0.03 and turn < math.radians(1.0), match

@@ -183,8 +183,8 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
         guess_covariance: (3, 3) positive-definite covariance of the guess: the
             refinement's weak prior (it decides nothing the walls fix); not part of the
             returned covariance.
-        window_m, window_rad: the search's half-widths (m, rad); at most the front end's
-            ``MAX_SEARCH_WINDOW_M`` (5 m); a rotation window of π or more searches all
+        window_m, window_rad: the search's half-widths (m, rad); at most
+            ``MAX_SEARCH_WINDOW_M`` (20 m); a rotation window of π or more searches all
             headings.
 
     Returns:
