@@ -659,7 +659,10 @@ class SubmapConfig:
             grows with the window's area: about 1 s per candidate at 12 m; at most
             ``MAX_SEARCH_WINDOW_M``). A window narrower than the drift cannot hold the true
             alignment, and then a copy of the structure within it (a facade, a row of
-            trees) is what the search finds.
+            trees) is what the search finds; a wider one also holds more rivals (turned
+            ones among them) that the checks must tell from the truth. On the campus, ten
+            perturbed runs each: 12 m gives five runs within 2 m but three beyond 20 m,
+            5 m two within 2 m and none beyond 12.2 m (the medians are 3.9 m both).
         loop_min_window_rad: the same bounds for the heading (rad).
         loop_max_window_rad:
         loop_max_candidates: old submaps matched against each newly frozen one, nearest
@@ -718,7 +721,7 @@ class SubmapConfig:
     carry_over_m: float = 10.0
     loop_sigmas: float = 3.0
     loop_min_window_m: float = 2.0
-    loop_max_window_m: float = 12.0
+    loop_max_window_m: float = 5.0
     loop_min_window_rad: float = math.radians(20.0)
     loop_max_window_rad: float = math.pi
     loop_max_candidates: int = 4
