@@ -12,7 +12,8 @@ from scipy.stats import chi2
 
 from bsslam.errors import ConfigError
 from bsslam.frontend import FrontendConfig, ReferenceMap, match_scan, scan_points
-from bsslam.frontend.scan_matcher import LikelihoodField, _distinct_maxima, _kdtree, _offset_grid, _search_grid, transform_points
+from bsslam.frontend.scan_matcher import (LikelihoodField, _distinct_maxima, _kdtree, _offset_axis, _offset_grid,
+                                          _search_grid, transform_points)
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.se2 import between
 from bsslam.sim import Arc, SimConfig, WallSet, get_world, simulate
@@ -225,10 +226,10 @@ def test_distinct_maxima_matches_the_sorting_oracle(seed):
     score = rng.random((n_rot, off.shape[0]))
     k = [4, 4, 10, 50, 1, 200][seed]          # also more than can be distinct
     expected = _distinct_maxima_by_sorting(score, k, rot_sep=2, off=off, off_sep=4)
-    got = _distinct_maxima(score, k, rot_sep=2, off=off, off_sep=4)
+    got = _distinct_maxima(score, k, rot_sep=2, axis=_offset_axis(6, 2), off_sep=4)
     assert got == expected
     score_copy = score.copy()
-    _distinct_maxima(score, k, rot_sep=2, off=off, off_sep=4)
+    _distinct_maxima(score, k, rot_sep=2, axis=_offset_axis(6, 2), off_sep=4)
     np.testing.assert_array_equal(score, score_copy)
 
 

@@ -260,9 +260,15 @@ class LikelihoodField:
                              half_cells // step_cells, step_cells)
 
 
+def _offset_axis(half_cells: int, step_cells: int) -> np.ndarray:
+    """(w,) int offsets k·step in [−half, half] along one axis (cells), ascending."""
+    return np.arange(-(half_cells // step_cells), half_cells // step_cells + 1) * step_cells
+
+
 def _offset_grid(half_cells: int, step_cells: int) -> np.ndarray:
-    """(t, 2) int offsets k·step for k·step in [−half, half] on both axes."""
-    k = np.arange(-(half_cells // step_cells), half_cells // step_cells + 1) * step_cells
+    """(t, 2) int offsets k·step for k·step in [−half, half] on both axes: the square
+    grid of :func:`_offset_axis` on x and y, x offset major."""
+    k = _offset_axis(half_cells, step_cells)
     gx, gy = np.meshgrid(k, k, indexing="ij")
     return np.column_stack((gx.ravel(), gy.ravel()))
 
@@ -275,7 +281,9 @@ class _SearchGrid:
     Attributes:
         rot_steps: (r,) coarse rotations relative to the guess (rad).
         coarse_half, coarse_step: the coarse offsets are ``_offset_grid(coarse_half,
-            coarse_step)`` (coarse cells); offsets (t, 2) those cells, offsets_m (t, 2) in m.
+            coarse_step)`` (coarse cells); offsets (t, 2) those cells, offsets_m (t, 2) in m;
+            axis (w,) the grid's coordinates on either axis, ``_offset_axis(coarse_half,
+            coarse_step)`` (t = w²).
         coarse_penalty: (r, t) ``search_prior_weight`` × the quadratic penalty of each
             coarse pose's distance from the guess.
         fine_rot: (f,) fine rotations relative to a coarse candidate (rad).
@@ -292,6 +300,7 @@ class _SearchGrid:
     coarse_step: int
     offsets: np.ndarray
     offsets_m: np.ndarray
+    axis: np.ndarray
     coarse_penalty: np.ndarray
     fine_rot: np.ndarray
     fine_half: int
@@ -318,10 +327,10 @@ def _search_grid(cfg: FrontendConfig, res_c: float, res_f: float) -> _SearchGrid
     dy = offsets_m[:, 1:2] + fine_offsets_m[None, :, 1]
     trans = (dx * dx + dy * dy) / (2 * cfg.search_window_m ** 2)
     rot = (rot_steps[:, None] + fine_rot[None, :]) ** 2 / (2 * cfg.search_window_rad ** 2)
-    grid = _SearchGrid(rot_steps, half_c, step_c, offsets, offsets_m, penalty, fine_rot, half_f,
-                       fine_offsets_m, trans, rot)
-    for a in (grid.rot_steps, grid.offsets, grid.offsets_m, grid.coarse_penalty, grid.fine_rot, grid.fine_offsets_m,
-              grid.fine_trans_prior, grid.fine_rot_prior):
+    grid = _SearchGrid(rot_steps, half_c, step_c, offsets, offsets_m, _offset_axis(half_c, step_c), penalty,
+                       fine_rot, half_f, fine_offsets_m, trans, rot)
+    for a in (grid.rot_steps, grid.offsets, grid.offsets_m, grid.axis, grid.coarse_penalty, grid.fine_rot,
+              grid.fine_offsets_m, grid.fine_trans_prior, grid.fine_rot_prior):
         a.flags.writeable = False          # shared between calls
     return grid
 
@@ -483,7 +492,7 @@ class ReferenceMap:
         score = self.coarse_scores(points, guess) if coarse is None else coarse   # (r, t)
         # Quadratic tie-break towards the guess: −w at the window's corner.
         score = score - grid.coarse_penalty
-        candidates = _distinct_maxima(score, cfg.coarse_candidates, rot_sep=2, off=grid.offsets,
+        candidates = _distinct_maxima(score, cfg.coarse_candidates, rot_sep=2, axis=grid.axis,
                                       off_sep=2 * grid.coarse_step, overwrite=True)
         cand_rot, cand_off = (list(c) for c in zip(*candidates))
         # Fine level: ±1 coarse step (rotation and translation) around each candidate: the
@@ -533,7 +542,7 @@ class ReferenceMap:
         score[near(guess[0] + grid.offsets_m[None, :, 0], guess[1] + grid.offsets_m[None, :, 1],
                    poses[:, 2:3])] = -np.inf
         # _distinct_maxima stops at the first −inf: every candidate is distinct from best.
-        candidates = _distinct_maxima(score, cfg.coarse_candidates, rot_sep=2, off=grid.offsets,
+        candidates = _distinct_maxima(score, cfg.coarse_candidates, rot_sep=2, axis=grid.axis,
                                       off_sep=2 * grid.coarse_step, overwrite=True)
         if not candidates:
             return guess.copy(), 0.0
@@ -703,15 +712,16 @@ class ReferenceMap:
         return MatchResult(pose, cov, score, True, "ok", degenerate, **base)
 
 
-def _distinct_maxima(score: np.ndarray, k: int, *, rot_sep: int, off: np.ndarray, off_sep: int,
+def _distinct_maxima(score: np.ndarray, k: int, *, rot_sep: int, axis: np.ndarray, off_sep: int,
                      overwrite: bool = False) -> list[tuple[int, int]]:
     """Up to ``k`` (rotation, offset) indices of the highest scores, each at least
     ``rot_sep`` rotation steps or ``off_sep`` cells from those already taken.
 
     Args:
         score: (r, t) scores (rotations × offsets); not modified unless ``overwrite``.
-        off: (t, 2) the offsets (cells) of the columns: a square grid, x offset major, as
-            :func:`_offset_grid` makes it.
+        axis: (w,) ascending coordinates (cells) of the square grid of offsets that the
+            columns are, x offset major (t = w², as :func:`_offset_grid` of the same
+            :func:`_offset_axis` lays them out).
         overwrite: ``score`` is a float64 scratch array that may be used up.
 
     Greedy: take the highest remaining score, then knock out its neighbourhood (a band
@@ -723,10 +733,9 @@ def _distinct_maxima(score: np.ndarray, k: int, *, rot_sep: int, off: np.ndarray
     left = score if overwrite else np.array(score, dtype=float)   # knocked-out entries become −inf
     left = np.ascontiguousarray(left)           # so that the views below write into it
     n_rot, n_off = left.shape
-    axis = np.unique(off[:, 1])                 # the grid's coordinates on either axis
     width = axis.shape[0]
-    if width * width != n_off or not np.array_equal(off[:, 0], np.repeat(axis, width)):
-        raise ValueError("offsets must form a square grid, x offset major")
+    if width * width != n_off:
+        raise ValueError(f"{n_off} offsets are not the square grid of {width} coordinates")
     block = left.reshape(n_rot, width, width)
     flat = left.reshape(-1)
     taken: list[tuple[int, int]] = []
