@@ -696,6 +696,16 @@ class SubmapConfig:
         loop_search_points: at most this many (evenly chosen) query points go into the
             correlative search; ``loop_refine_points`` into the refinement.
         loop_refine_points:
+        loop_support_submaps: verified matches vote on each other: two whose submaps are
+            each within this many submaps of the other's agree when the cycle they close
+            through the submaps' odometry-like constraints is consistent (χ²(3) at 99 %),
+            disagree when it is not; only cycles precise enough to tell distinct
+            alignments apart (``loop_distinct_m`` / ``loop_distinct_rad``) vote. A match
+            the graph expects (within the 99 % region of its relative pose) enters the
+            graph unless more neighbours disagree than agree; a surprising one only once
+            more agree than disagree. A match that no later one can vote on any more is
+            dropped (``unsupported``). 0 admits every verified match at once. See
+            :mod:`bsslam.submaps.loop_support`.
         loop_outliers: how the pose graph guards against a wrong loop closure that passed
             the checks above (one that looks right locally but that the rest of the graph
             contradicts): ``cauchy`` (default) puts every loop closure behind a Cauchy
@@ -736,6 +746,7 @@ class SubmapConfig:
     loop_distinct_rad: float = math.radians(10.0)
     loop_search_points: int = 400
     loop_refine_points: int = 1500
+    loop_support_submaps: int = 3
     loop_outliers: LoopOutliers = "cauchy"
     robust_kernel_width: float = 3.0
     loop_inlier_probability: float = 0.99
@@ -767,6 +778,8 @@ class SubmapConfig:
         for name in ("loop_search_points", "loop_refine_points"):
             _check(isinstance(getattr(self, name), int) and 30 <= getattr(self, name) <= 100_000,
                    f"submaps.{name} must be an integer in [30, 100000]")
+        _check(isinstance(self.loop_support_submaps, int) and 0 <= self.loop_support_submaps <= 100,
+               "submaps.loop_support_submaps must be an integer in [0, 100] (0: every verified match)")
         _check(self.loop_outliers in ("cauchy", "gnc"), "submaps.loop_outliers must be 'cauchy' or 'gnc'")
         _check(self.robust_kernel_width > 0, "submaps.robust_kernel_width must be > 0")
         _check(0 < self.loop_inlier_probability < 1, "submaps.loop_inlier_probability must be in (0, 1)")

@@ -46,6 +46,17 @@ def compose_jacobians(pose: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, 
     return F_x, F_u
 
 
+def inverse_with_covariance(a: np.ndarray, cov_a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """a⁻¹ and its first-order covariance ``J Σ_a Jᵀ`` for a (3,) with covariance (3, 3)."""
+    a = np.asarray(a, dtype=float)
+    c, s = np.cos(a[2]), np.sin(a[2])
+    J = np.array([[-c, -s, s * a[0] - c * a[1]],
+                  [s, -c, c * a[0] + s * a[1]],
+                  [0.0, 0.0, -1.0]])
+    cov = J @ cov_a @ J.T
+    return inverse(a), 0.5 * (cov + cov.T)
+
+
 def compose_with_covariance(a: np.ndarray, cov_a: np.ndarray, b: np.ndarray, cov_b: np.ndarray
                             ) -> tuple[np.ndarray, np.ndarray]:
     """a ∘ b and its first-order covariance for independent a (3,) and b (3,) with

@@ -4,6 +4,7 @@ with their covariance, surfaces shared between submaps."""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import numpy as np
@@ -15,12 +16,13 @@ from bsslam.errors import MemoryBudgetError
 from bsslam.experiments.consistency import simulation_config
 from bsslam.mapper import Mapper
 from bsslam.pipeline import run_dataset
-from bsslam.se2 import between
+from bsslam.se2 import between, compose
 from bsslam.sim import SimConfig, get_world, simulate
 from bsslam.slam import MapSpline
 from bsslam.slam.state import JointState
 from bsslam.spline import BSplineCurve
-from bsslam.submaps.backend import SURFACE_SPACING_M, SubmapSLAM, mark_surfaces, transform_spline
+from bsslam.submaps.backend import SURFACE_SPACING_M, SubmapSLAM, mark_surfaces, matching_shape, transform_spline
+from bsslam.submaps.loop_support import chain
 
 
 def _config(**submaps) -> SLAMConfig:
@@ -177,3 +179,62 @@ def test_the_configured_guard_against_wrong_loop_closures_reaches_the_graph():
     slam = SubmapSLAM(_config(loop_outliers="gnc", loop_inlier_probability=0.95))
     assert slam.graph.loop_outliers == "gnc" and slam.graph.loop_inlier_probability == 0.95
     assert SubmapSLAM(_config(robust_kernel_width=2.0)).graph.robust_kernel_width == 2.0
+
+
+def test_a_surprising_match_waits_for_a_neighbour_that_agrees(double_loop):
+    """A verified match beyond the graph's 99 % region enters the graph only once a
+    neighbouring match closes a consistent cycle with it; alone it is dropped as
+    ``unsupported`` once no later query can vote on it."""
+    _, result, _ = double_loop
+    slam = copy.deepcopy(result.submaps)
+    reach = slam.config.submaps.loop_support_submaps
+    loop = slam.loops[-1]
+    last = slam.submap_index
+    before = slam.graph.loop_count
+
+    # a copy of the last loop closure's walls 2 m away, alone
+    wrong = dataclasses.replace(loop, reference=loop.reference - 1, loop_id=-1,
+                                relative=compose(chain(_edges(slam), loop.reference - 1, loop.reference)[0],
+                                                 compose(loop.relative, np.array([2.0, 0.0, 0.0]))))
+    assert not slam._admit(last, [(wrong, 5.0, True)])
+    assert slam.graph.loop_count == before
+    slam._expire_pending(last + reach)
+    assert slam.stats.loop_rejections["unsupported"] >= 1 and slam.graph.loop_count == before
+
+    # the same pair of submaps matched where the loop closure beside it says: it agrees
+    right = dataclasses.replace(wrong, relative=compose(chain(_edges(slam), loop.reference - 1, loop.reference)[0],
+                                                        loop.relative))
+    assert slam._admit(last, [(right, 5.0, True)])
+    assert slam.graph.loop_count == before + 1
+
+
+def _edges(slam):
+    return [(f.end_pose, f.end_covariance) for f in slam.frozen]
+
+
+def test_a_spline_position_sigma_is_the_median_control_point_sigma():
+    """Against numpy's eigenvalues of each control point's 2 × 2 block."""
+    rng = np.random.default_rng(2)
+    n = 7
+    A = rng.normal(size=(2 * n, 2 * n))
+    cov = A @ A.T * 0.01
+    curve = BSplineCurve(rng.normal(size=(n, 2)), np.r_[np.zeros(3), np.arange(n - 2), np.full(3, n - 3)], 3)
+    spline = MapSpline(0, curve, cov)
+    blocks = [cov[np.ix_([i, n + i], [i, n + i])] for i in range(n)]
+    expected = np.median([np.sqrt(np.linalg.eigvalsh(b)[-1]) for b in blocks])
+    assert spline.position_sigma == pytest.approx(expected, rel=1e-12)
+
+
+def test_walls_a_lost_filter_mapped_take_no_part_in_loop_closure(double_loop):
+    """A submap's walls whose place is known to worse than ``loop_distinct_m`` stay in the
+    map but are not sampled for matching."""
+    _, result, _ = double_loop
+    cfg = result.submaps.config.submaps
+    splines = result.submaps.local_map(3)
+    assert len(splines) > 2 and all(s.position_sigma <= cfg.loop_distinct_m for s in splines)
+    full = matching_shape(splines, cfg)
+    np.testing.assert_array_equal(full.points, result.submaps.frozen[3].shape.points)
+    lost = [dataclasses.replace(s, covariance=s.covariance + np.eye(s.covariance.shape[0])) for s in splines[:2]]
+    shape = matching_shape(lost + splines[2:], cfg)
+    np.testing.assert_array_equal(shape.points, matching_shape(splines[2:], cfg).points)
+    assert 0 < shape.points.shape[0] < full.points.shape[0]

@@ -80,3 +80,17 @@ class MapSpline:
     @property
     def order(self) -> int:
         return self.curve.degree + 1
+
+    @property
+    def position_sigma(self) -> float:
+        """How well the spline's place is known (m): the median over its control points
+        of √ the largest eigenvalue of each one's 2 × 2 covariance block (the median, not
+        the largest: an end control point can be loose while the curve is fixed)."""
+        n = self.curve.control_points.shape[0]
+        c = self.covariance
+        if n == 0 or c.size == 0:
+            return 0.0
+        i = np.arange(n)
+        a, d, b = c[i, i], c[n + i, n + i], c[i, n + i]
+        largest = 0.5 * (a + d) + np.sqrt(0.25 * (a - d) ** 2 + b * b)
+        return float(np.sqrt(max(float(np.median(largest)), 0.0)))

@@ -18,8 +18,10 @@ again beside themselves. Here:
   :class:`~bsslam.submaps.pose_graph.PoseGraph` (GTSAM iSAM2).
 - **Loop closure.** A newly frozen submap is matched against the old submaps whose area it
   may overlap given the graph's uncertainty (:func:`~bsslam.submaps.loop_closure.match_submaps`:
-  a wide correlative search on the old submap's spline points, then verification); every
-  accepted match goes into the graph, which down-weights (a Cauchy kernel, by default) or
+  a wide correlative search on the old submap's spline points, then verification). A
+  verified match waits until another one nearby agrees with it around the cycle they close
+  (:mod:`~bsslam.submaps.loop_support`, ``submaps.loop_support_submaps``); then it goes
+  into the graph, which down-weights (a Cauchy kernel, by default) or
   sets aside (graduated non-convexity, ``submaps.loop_outliers: gnc``) the ones the rest
   of the graph contradicts (see :mod:`~bsslam.submaps.pose_graph`).
 - **One map out.** Each submap's splines in its optimised frame; splines that lie on one
@@ -38,7 +40,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from bsslam.config import SLAMConfig
+from bsslam.config import SLAMConfig, SubmapConfig
 from bsslam.errors import MemoryBudgetError
 from bsslam.scan import LaserScan
 from bsslam.se2 import between, compose, compose_with_covariance
@@ -47,6 +49,7 @@ from bsslam.slam.features import SplineFeature
 from bsslam.slam.filter import StepReport
 from bsslam.spline import BSplineCurve
 from bsslam.submaps.loop_closure import SubmapShape, match_submaps
+from bsslam.submaps.loop_support import CONSISTENT_CHI2, LoopEdge, votes
 from bsslam.submaps.pose_graph import PoseGraph
 
 #: Prior σ on the first base pose when the configuration gives none: the map frame is
@@ -89,7 +92,8 @@ class LoopRecord:
         reference, query: the submaps (graph nodes); ``relative`` (3,) is the query's base
             in the reference's frame, ``covariance`` (3, 3) its covariance.
         inlier_fraction, overlap_m: the match's verification figures.
-        loop_id: the factor's id in the graph (its weight in the solution: ``PoseGraph.loop_weights``).
+        loop_id: the factor's id in the graph (its weight in the solution: ``PoseGraph.loop_weights``);
+            −1 while the match waits for support, not yet in the graph.
     """
 
     reference: int
@@ -98,7 +102,7 @@ class LoopRecord:
     covariance: np.ndarray
     inlier_fraction: float
     overlap_m: float
-    loop_id: int
+    loop_id: int = -1
 
 
 @dataclass
@@ -140,6 +144,8 @@ class SubmapSLAM:
         self.frozen: list[FrozenSubmap] = []
         self._frozen_bytes = 0
         self.loops: list[LoopRecord] = []
+        # verified matches waiting to enter the graph: (record, window_m, surprising)
+        self._pending: list[tuple[LoopRecord, float, bool]] = []
         self.stats = SubmapStats()
         self._max_bytes = int(self.config.max_memory_mb * 2 ** 20)
         self._bases = self.graph.poses()               # (k, 3) optimised base poses
@@ -228,6 +234,7 @@ class SubmapSLAM:
         call once, at the end of a run. Further steps start a new submap."""
         if self._local.steps > self._seed_steps:
             self._freeze()
+        self._expire_pending(self.submap_index + self.config.submaps.loop_support_submaps)
 
     @property
     def _seed_steps(self) -> int:
@@ -248,8 +255,8 @@ class SubmapSLAM:
     def _freeze(self) -> None:
         local, k = self._local, self.submap_index
         splines = local.map
-        shape = SubmapShape.from_curves([s.curve for s in splines], self.config.submaps.point_spacing_m)
-        frozen = FrozenSubmap(k, splines, shape, local.pose, local.pose_covariance, local.steps)
+        cfg = self.config.submaps
+        frozen = FrozenSubmap(k, splines, matching_shape(splines, cfg), local.pose, local.pose_covariance, local.steps)
         self.frozen.append(frozen)
         self._frozen_bytes += frozen.nbytes
         self.graph.add_node(frozen.end_pose, _proper(frozen.end_covariance))
@@ -259,13 +266,13 @@ class SubmapSLAM:
             self._drop_loops(self.graph.optimize())
             self._bases = self.graph.poses()
         self._base_cov = self.graph.covariance(k + 1)
-        self._local = self._new_local(local if self.config.submaps.carry_over_m > 0 else None)
+        self._local = self._new_local(local if cfg.carry_over_m > 0 else None)
         self.stats.submaps = k + 2
 
     def _close_loops(self, k: int) -> bool:
         """Match frozen submap ``k`` against the old submaps it may overlap (not its
-        neighbour, tied to it by the odometry constraint); add the verified matches to the
-        graph. True when one was added."""
+        neighbour, tied to it by the odometry constraint); verified matches go to
+        :meth:`_admit`. True when a loop closure was added to the graph."""
         cfg = self.config.submaps
         query = self.frozen[k].shape
         if cfg.loop_max_candidates == 0 or k < 2 or query.points.shape[0] == 0:
@@ -276,7 +283,7 @@ class SubmapSLAM:
         here = compose(self._bases[k], np.r_[query.center, 0.0])[:2]
         gap = np.hypot(*(centres - here).T) - radii - query.radius   # < 0: the areas overlap
         order = np.argsort(gap, kind="stable")
-        added = False
+        found: list[tuple[LoopRecord, float, bool]] = []
         tried = 0
         for j in order:
             if tried == cfg.loop_max_candidates or gap[j] > cfg.loop_max_window_m:
@@ -294,12 +301,52 @@ class SubmapSLAM:
             if not match.ok:
                 self.stats.loop_rejections[match.reason] = self.stats.loop_rejections.get(match.reason, 0) + 1
                 continue
-            loop_id = self.graph.add_loop(int(j), k, match.relative, _proper(match.covariance, window_m))
-            self.loops.append(LoopRecord(int(j), k, match.relative, match.covariance,
-                                         match.inlier_fraction, match.overlap_m, loop_id))
+            # a match beyond the graph's 99 % region claims drift the graph does not expect
+            offset = match.relative - guess
+            offset[2] = math.remainder(offset[2], 2 * math.pi)
+            surprising = not float(offset @ np.linalg.solve(_proper(cov), offset)) <= CONSISTENT_CHI2
+            found.append((LoopRecord(int(j), k, match.relative, match.covariance, match.inlier_fraction,
+                                     match.overlap_m), window_m, surprising))
+        return self._admit(k, found)
+
+    def _admit(self, k: int, found: list[tuple[LoopRecord, float, bool]]) -> bool:
+        """Add to the graph the verified matches (``found``: those of query ``k``, and
+        those still waiting) that their neighbours let in (:func:`votes` among the graph's
+        loop closures and the waiting matches): a match within the graph's 99 % region
+        when no more neighbours contradict it than agree with it; a surprising one only
+        when more agree than contradict (every match when ``loop_support_submaps`` is 0).
+        The others wait while a later query can still vote on them. True when one was added."""
+        cfg = self.config.submaps
+        reach = cfg.loop_support_submaps
+        self._pending += found
+        if reach == 0:
+            admitted = self._pending
+        else:
+            edges = [(f.end_pose, _proper(f.end_covariance)) for f in self.frozen]
+            pool = [_edge(r) for r in self.loops if r.query >= k - 2 * reach] + [_edge(p[0]) for p in self._pending]
+            admitted = []
+            for p in self._pending:
+                agree, disagree = votes(_edge(p[0]), pool, edges, reach, cfg.loop_distinct_m, cfg.loop_distinct_rad)
+                if agree > disagree or (agree == disagree and not p[2]):
+                    admitted.append(p)
+        chosen = {id(p) for p in admitted}
+        self._pending = [p for p in self._pending if id(p) not in chosen]
+        for record, window_m, _ in sorted(admitted, key=lambda p: (p[0].query, p[0].reference)):
+            loop_id = self.graph.add_loop(record.reference, record.query, record.relative,
+                                          _proper(record.covariance, window_m))
+            self.loops.append(replace(record, loop_id=loop_id))
             self.stats.loop_closures += 1
-            added = True
-        return added
+        self._expire_pending(k)
+        return bool(admitted)
+
+    def _expire_pending(self, k: int) -> None:
+        """Drop the waiting matches no query after ``k`` can support (counted as
+        ``unsupported`` rejections)."""
+        reach = self.config.submaps.loop_support_submaps
+        expired = [p for p in self._pending if p[0].query + reach <= k]
+        if expired:
+            self._pending = [p for p in self._pending if p[0].query + reach > k]
+            self.stats.loop_rejections["unsupported"] = self.stats.loop_rejections.get("unsupported", 0) + len(expired)
 
     def _drop_loops(self, dropped: list[int]) -> None:
         """Forget the loop closures the optimiser dropped (with them the system was
@@ -408,6 +455,21 @@ def carry_over(previous: SplineSLAM, local: SplineSLAM, radius_m: float, max_sta
                           observations=1)     # confirmed: the old submap's updates used it
         local.spline_map.add(g)
     return len(near)
+
+
+def matching_shape(splines: list[MapSpline], config: SubmapConfig) -> SubmapShape:
+    """The points loop closure matches a submap by: its splines sampled every
+    ``point_spacing_m``, but for those whose place in the submap is known to worse than
+    ``loop_distinct_m`` (:attr:`MapSpline.position_sigma`). Such a wall cannot tell two
+    distinct alignments apart, and a filter that lost itself maps walls metres off (the
+    Freiburg campus, a run with 1 mm of range noise: four loop closures turned 30° against
+    one such submap); they stay in the map."""
+    sure = [s.curve for s in splines if s.position_sigma <= config.loop_distinct_m]
+    return SubmapShape.from_curves(sure, config.point_spacing_m)
+
+
+def _edge(record: LoopRecord) -> LoopEdge:
+    return LoopEdge(record.reference, record.query, record.relative, record.covariance)
 
 
 def _proper(cov: np.ndarray, max_sigma: float = 100.0) -> np.ndarray:

@@ -1,0 +1,126 @@
+"""Pairwise consistency of loop closures: a verified match enters the pose graph only once
+another match nearby agrees with it.
+
+Two loop closures a (query k seen from reference i) and b (query l seen from reference j)
+close a cycle with the submaps' own odometry-like constraints:
+i → k (a), k → l (the chain of submaps between them), l → j (b reversed), j → i (the chain
+again). Both right, the cycle composes to the identity within its covariance; one of them
+wrong, it does not — unless the chains are so long that their covariance admits anything,
+which is why only matches whose references and queries are both within ``reach`` submaps
+of each other are compared (the idea of Pairwise Consistency Maximisation, Mangelson et al.
+2018, restricted to neighbours so that each test is informative and cheap).
+
+Why: a match that passes every local check can still be wrong — a building turned by 90°,
+a facade's copy — and the robust kernel of the graph cannot tell it from drift when the
+graph is uncertain. A right match is seldom alone: the robot that comes back to a place
+stays there for a few submaps, and each of them matches the old ones. On the Freiburg
+campus (three runs, every accepted loop closure against the reference) 97–99 % of the
+right ones had a consistent neighbour, and the wrong ones 7–68 m off and turned by ~90°
+had none.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from bsslam.se2 import compose_with_covariance, inverse_with_covariance
+
+#: χ²(3) at 99 %: a cycle within this squared Mahalanobis distance of the identity is
+#: consistent.
+CONSISTENT_CHI2 = 11.34
+
+
+@dataclass(frozen=True)
+class LoopEdge:
+    """A verified match between two submaps.
+
+    Attributes:
+        reference, query: the submaps (graph nodes).
+        relative: (3,) the query's base in the reference's frame (x m, y m, φ rad).
+        covariance: (3, 3) its covariance (m², m·rad, rad²).
+    """
+
+    reference: int
+    query: int
+    relative: np.ndarray
+    covariance: np.ndarray
+
+
+def chain(edges: Sequence[tuple[np.ndarray, np.ndarray]], i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
+    """Node ``j``'s pose in node ``i``'s frame composed along the odometry-like
+    constraints, and its first-order covariance.
+
+    Args:
+        edges: ``edges[m]`` = ((3,) pose of node m+1 in node m's frame, (3, 3) covariance),
+            for every m < max(i, j).
+    """
+    lo, hi = min(i, j), max(i, j)
+    pose, cov = np.zeros(3), np.zeros((3, 3))
+    for m in range(lo, hi):
+        pose, cov = compose_with_covariance(pose, cov, *edges[m])
+    return (pose, cov) if i <= j else inverse_with_covariance(pose, cov)
+
+
+def cycle(a: LoopEdge, b: LoopEdge, edges: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """The cycle a, chain(a.query → b.query), b⁻¹, chain(b.reference → a.reference): (3,)
+    its composition (the identity if all four are right) and (3, 3) its first-order
+    covariance (the four parts taken as independent)."""
+    pose, cov = compose_with_covariance(a.relative, a.covariance, *chain(edges, a.query, b.query))
+    pose, cov = compose_with_covariance(pose, cov, *inverse_with_covariance(b.relative, b.covariance))
+    return compose_with_covariance(pose, cov, *chain(edges, b.reference, a.reference))
+
+
+def cycle_distance(a: LoopEdge, b: LoopEdge, edges: Sequence[tuple[np.ndarray, np.ndarray]]) -> float:
+    """Squared Mahalanobis distance of :func:`cycle` from the identity."""
+    pose, cov = cycle(a, b, edges)
+    try:
+        return float(pose @ np.linalg.solve(cov, pose))
+    except np.linalg.LinAlgError:
+        return float("inf")
+
+
+def neighbours(a: LoopEdge, b: LoopEdge, reach: int) -> bool:
+    """Both ends of ``a`` and ``b`` within ``reach`` submaps of each other (and not the
+    same pair of submaps)."""
+    return (abs(a.reference - b.reference) <= reach and abs(a.query - b.query) <= reach
+            and (a.reference, a.query) != (b.reference, b.query))
+
+
+def votes(candidate: LoopEdge, others: Sequence[LoopEdge], edges: Sequence[tuple[np.ndarray, np.ndarray]],
+          reach: int, distinct_m: float, distinct_rad: float) -> tuple[int, int]:
+    """How many of the neighbouring matches in ``others`` (:func:`neighbours`) close a
+    consistent cycle with ``candidate`` (χ²(3) at 99 %) and how many an inconsistent one.
+
+    Only informative cycles vote: those whose 99 % region is within ``distinct_m`` (m) in
+    position and ``distinct_rad`` (rad) in heading — a cycle that cannot tell two distinct
+    alignments apart (one through a submap whose filter lost itself, with a metre of
+    uncertainty) would support any of them."""
+    consistent = inconsistent = 0
+    scale = float(np.sqrt(CONSISTENT_CHI2))
+    for other in others:
+        if not neighbours(candidate, other, reach):
+            continue
+        pose, cov = cycle(candidate, other, edges)
+        if (scale * np.sqrt(np.linalg.eigvalsh(cov[:2, :2])[-1]) > distinct_m
+                or scale * np.sqrt(cov[2, 2]) > distinct_rad):
+            continue
+        try:
+            d2 = float(pose @ np.linalg.solve(cov, pose))
+        except np.linalg.LinAlgError:
+            continue
+        if d2 <= CONSISTENT_CHI2:
+            consistent += 1
+        else:
+            inconsistent += 1
+    return consistent, inconsistent
+
+
+def is_supported(candidate: LoopEdge, others: Sequence[LoopEdge], edges: Sequence[tuple[np.ndarray, np.ndarray]],
+                 reach: int, distinct_m: float = np.inf, distinct_rad: float = np.inf) -> bool:
+    """True when more informative neighbouring matches agree with ``candidate`` than
+    contradict it, and at least one does (:func:`votes`)."""
+    consistent, inconsistent = votes(candidate, others, edges, reach, distinct_m, distinct_rad)
+    return consistent > inconsistent

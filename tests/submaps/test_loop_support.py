@@ -1,0 +1,111 @@
+"""Pairwise consistency of loop closures (``submaps/loop_support.py``): the cycle two
+right matches close is χ²(3)-distributed under its first-order covariance, a wrong one
+leaves it, and the support rule counts only neighbours."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.stats import binom, chi2
+
+from bsslam.se2 import between, compose, inverse, inverse_with_covariance
+from bsslam.submaps.loop_support import CONSISTENT_CHI2, LoopEdge, chain, cycle_distance, is_supported
+
+EDGE_SIGMA = np.array([0.05, 0.05, 0.01])      # m, m, rad: one submap's odometry-like constraint
+LOOP_SIGMA = np.array([0.03, 0.03, 0.005])     # a loop closure's match
+
+
+def _wrap(a):
+    return np.remainder(a + np.pi, 2 * np.pi) - np.pi
+
+
+def _bases(n=12, seed=0) -> np.ndarray:
+    """(n, 3) true base poses of a robot driving round a loop."""
+    rng = np.random.default_rng(seed)
+    poses = [np.zeros(3)]
+    for _ in range(n - 1):
+        poses.append(compose(poses[-1], np.array([4.0, 0.0, 0.6]) + rng.normal(0, [0.3, 0.3, 0.1])))
+    return np.array(poses)
+
+
+def _draw(bases, rng):
+    """Noisy edges and two right loop closures (0 → 8, 1 → 9), each drawn from its covariance."""
+    edges = [(between(bases[m], bases[m + 1]) + rng.normal(0, EDGE_SIGMA), np.diag(EDGE_SIGMA ** 2))
+             for m in range(len(bases) - 1)]
+    loops = [LoopEdge(i, k, between(bases[i], bases[k]) + rng.normal(0, LOOP_SIGMA), np.diag(LOOP_SIGMA ** 2))
+             for i, k in ((0, 8), (1, 9))]
+    return edges, loops
+
+
+def test_inverse_covariance_is_the_first_order_propagation():
+    a = np.array([1.5, -0.7, 2.2])
+    cov = np.array([[0.04, 0.01, 0.002], [0.01, 0.09, -0.003], [0.002, -0.003, 0.01]])
+    eps = 1e-6
+    J = np.column_stack([(inverse(a + d) - inverse(a - d)) / (2 * eps) for d in np.eye(3) * eps])
+    pose, out = inverse_with_covariance(a, cov)
+    np.testing.assert_allclose(pose, inverse(a))
+    np.testing.assert_allclose(out, J @ cov @ J.T, rtol=1e-7, atol=1e-12)
+
+
+def test_chain_composes_the_edges_both_ways():
+    bases = _bases()
+    edges = [(between(bases[m], bases[m + 1]), np.diag(EDGE_SIGMA ** 2)) for m in range(len(bases) - 1)]
+    forward, cov_f = chain(edges, 2, 6)
+    np.testing.assert_allclose(forward, between(bases[2], bases[6]), atol=1e-12)
+    backward, cov_b = chain(edges, 6, 2)
+    np.testing.assert_allclose(backward, between(bases[6], bases[2]), atol=1e-12)
+    # four independent edges: the heading variance adds up
+    assert cov_f[2, 2] == pytest.approx(4 * EDGE_SIGMA[2] ** 2)
+    assert cov_b[2, 2] == pytest.approx(4 * EDGE_SIGMA[2] ** 2)
+    np.testing.assert_array_equal(chain(edges, 3, 3)[0], np.zeros(3))
+
+
+def test_two_right_loop_closures_close_a_chi2_cycle():
+    """Over 400 draws of the edges and both loops from their covariances, the cycle's
+    squared distance exceeds the 99 % quantile about 1 % of the time and its mean is ~3
+    (a binomial bound at a 1e-6 false-alarm rate; the mean's standard error is
+    √(6/400) ≈ 0.12, the bound 5 of them)."""
+    bases = _bases()
+    rng = np.random.default_rng(7)
+    d = []
+    for _ in range(400):
+        edges, (a, b) = _draw(bases, rng)
+        d.append(cycle_distance(a, b, edges))
+    d = np.array(d)
+    assert np.count_nonzero(d > CONSISTENT_CHI2) <= binom.ppf(1 - 1e-6, 400, 0.01)
+    assert abs(d.mean() - chi2.mean(3)) < 0.6
+
+
+@pytest.mark.parametrize("offset", [(0.5, 0.0, 0.0), (0.0, -0.4, 0.0), (0.0, 0.0, np.radians(5.0)),
+                                    (8.0, 3.0, np.pi / 2)])
+def test_a_wrong_loop_closure_breaks_the_cycle(offset):
+    bases = _bases()
+    edges, (right, _) = _draw(bases, np.random.default_rng(3))
+    truth = between(bases[1], bases[9])
+    wrong = LoopEdge(1, 9, compose(truth, np.array(offset)), np.diag(LOOP_SIGMA ** 2))
+    assert cycle_distance(right, wrong, edges) > CONSISTENT_CHI2
+    assert cycle_distance(wrong, right, edges) > CONSISTENT_CHI2
+
+
+def test_support_counts_neighbours_that_agree_against_those_that_do_not():
+    bases = _bases(16)
+    edges = [(between(bases[m], bases[m + 1]), np.diag(EDGE_SIGMA ** 2)) for m in range(len(bases) - 1)]
+
+    def loop(i, k, shift=(0.0, 0.0)):
+        """A match of submap k against submap i; with ``shift`` (m, map frame) against a
+        copy of i's walls that far away."""
+        return LoopEdge(i, k, between(bases[i], bases[k] + np.r_[shift, 0.0]), np.diag(LOOP_SIGMA ** 2))
+
+    candidate = loop(1, 9)
+    assert not is_supported(candidate, [candidate], edges, reach=3)           # alone
+    assert is_supported(candidate, [candidate, loop(2, 10)], edges, reach=3)  # a right neighbour
+    # a right match beyond the reach is no support; nor is a wrong neighbour
+    assert not is_supported(candidate, [loop(5, 13)], edges, reach=3)
+    assert not is_supported(candidate, [loop(2, 10, (1.0, 0.0))], edges, reach=3)
+    # more neighbours contradict it than agree: it is the odd one out
+    many = [loop(2, 10), loop(0, 10, (1.0, 0.0)), loop(2, 11, (1.0, 0.0))]
+    assert not is_supported(candidate, many, edges, reach=3)
+    # two matches against the same copy agree with each other: the rule cannot tell a
+    # consistent pair of wrong ones (the graph's robust kernel is left with those)
+    assert is_supported(many[1], many[1:], edges, reach=3)
+    assert is_supported(candidate, many[:2], edges, reach=3) is False           # a tie is no support
