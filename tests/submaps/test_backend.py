@@ -187,7 +187,8 @@ def test_a_surprising_match_waits_for_a_neighbour_that_agrees(double_loop):
     ``unsupported`` once no later query can vote on it."""
     _, result, _ = double_loop
     slam = copy.deepcopy(result.submaps)
-    reach = slam.config.submaps.loop_support_submaps
+    reach = 3
+    slam.config = slam.config.replace(submaps=dataclasses.replace(slam.config.submaps, loop_support_submaps=reach))
     loop = slam.loops[-1]
     last = slam.submap_index
     before = slam.graph.loop_count

@@ -19,9 +19,9 @@ again beside themselves. Here:
 - **Loop closure.** A newly frozen submap is matched against the old submaps whose area it
   may overlap given the graph's uncertainty (:func:`~bsslam.submaps.loop_closure.match_submaps`:
   a wide correlative search on the old submap's spline points, then verification). A
-  verified match waits until another one nearby agrees with it around the cycle they close
-  (:mod:`~bsslam.submaps.loop_support`, ``submaps.loop_support_submaps``); then it goes
-  into the graph, which down-weights (a Cauchy kernel, by default) or
+  verified match goes into the graph (with ``submaps.loop_support_submaps`` > 0 a
+  surprising one first waits for a neighbouring match that agrees with it around the cycle
+  they close, :mod:`~bsslam.submaps.loop_support`), which down-weights (a Cauchy kernel, by default) or
   sets aside (graduated non-convexity, ``submaps.loop_outliers: gnc``) the ones the rest
   of the graph contradicts (see :mod:`~bsslam.submaps.pose_graph`).
 - **One map out.** Each submap's splines in its optimised frame; splines that lie on one
