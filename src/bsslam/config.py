@@ -709,6 +709,14 @@ class SubmapConfig:
             from 3.9 to 1.5 m, but ACES and Intel lose right loop closures that had no
             neighbour (median 0.223 → 0.263 m and 0.128 → 0.138 m), so it is off (README,
             Limits; :mod:`bsslam.submaps.loop_support`).
+        loop_max_wall_sigma_m: with a value > 0, a frozen submap's walls whose place in it
+            is known to worse than this (m; the median σ of their control points) take no
+            part in loop closure (they stay in the map); 0 (default) matches every wall.
+            At 0.5 m (``loop_distinct_m``: such a wall cannot tell distinct alignments
+            apart) Acapulco's worst of ten perturbed runs goes from 2.64 to 0.53 m and the
+            campus's median from 3.9 to 0.9 m, but three campus runs of eleven and the
+            as-logged one are lost (23–64 m) to matches turned by 58–149°, against none
+            beyond 12.2 m without it, so it is off (README, Limits).
         loop_outliers: how the pose graph guards against a wrong loop closure that passed
             the checks above (one that looks right locally but that the rest of the graph
             contradicts): ``cauchy`` (default) puts every loop closure behind a Cauchy
@@ -750,6 +758,7 @@ class SubmapConfig:
     loop_search_points: int = 400
     loop_refine_points: int = 1500
     loop_support_submaps: int = 0
+    loop_max_wall_sigma_m: float = 0.0
     loop_outliers: LoopOutliers = "cauchy"
     robust_kernel_width: float = 3.0
     loop_inlier_probability: float = 0.99
@@ -783,6 +792,8 @@ class SubmapConfig:
                    f"submaps.{name} must be an integer in [30, 100000]")
         _check(isinstance(self.loop_support_submaps, int) and 0 <= self.loop_support_submaps <= 100,
                "submaps.loop_support_submaps must be an integer in [0, 100] (0: every verified match)")
+        _check(0 <= self.loop_max_wall_sigma_m <= 100,
+               "submaps.loop_max_wall_sigma_m must be in [0, 100] m (0: every wall)")
         _check(self.loop_outliers in ("cauchy", "gnc"), "submaps.loop_outliers must be 'cauchy' or 'gnc'")
         _check(self.robust_kernel_width > 0, "submaps.robust_kernel_width must be > 0")
         _check(0 < self.loop_inlier_probability < 1, "submaps.loop_inlier_probability must be in (0, 1)")

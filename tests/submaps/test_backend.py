@@ -227,15 +227,17 @@ def test_a_spline_position_sigma_is_the_median_control_point_sigma():
 
 
 def test_walls_a_lost_filter_mapped_take_no_part_in_loop_closure(double_loop):
-    """A submap's walls whose place is known to worse than ``loop_distinct_m`` stay in the
-    map but are not sampled for matching."""
+    """With ``loop_max_wall_sigma_m`` a submap's walls whose place is known to worse than
+    it stay in the map but are not sampled for matching; at 0 (default) every wall is."""
     _, result, _ = double_loop
-    cfg = result.submaps.config.submaps
+    default = result.submaps.config.submaps
+    cfg = dataclasses.replace(default, loop_max_wall_sigma_m=0.5)
     splines = result.submaps.local_map(3)
-    assert len(splines) > 2 and all(s.position_sigma <= cfg.loop_distinct_m for s in splines)
+    assert len(splines) > 2 and all(s.position_sigma <= 0.5 for s in splines)
     full = matching_shape(splines, cfg)
     np.testing.assert_array_equal(full.points, result.submaps.frozen[3].shape.points)
     lost = [dataclasses.replace(s, covariance=s.covariance + np.eye(s.covariance.shape[0])) for s in splines[:2]]
     shape = matching_shape(lost + splines[2:], cfg)
     np.testing.assert_array_equal(shape.points, matching_shape(splines[2:], cfg).points)
     assert 0 < shape.points.shape[0] < full.points.shape[0]
+    np.testing.assert_array_equal(matching_shape(lost + splines[2:], default).points, full.points)

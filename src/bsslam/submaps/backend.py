@@ -331,7 +331,7 @@ class SubmapSLAM:
                     admitted.append(p)
         chosen = {id(p) for p in admitted}
         self._pending = [p for p in self._pending if id(p) not in chosen]
-        for record, window_m, _ in sorted(admitted, key=lambda p: (p[0].query, p[0].reference)):
+        for record, window_m, _ in admitted:     # in the order they were found
             loop_id = self.graph.add_loop(record.reference, record.query, record.relative,
                                           _proper(record.covariance, window_m))
             self.loops.append(replace(record, loop_id=loop_id))
@@ -459,12 +459,13 @@ def carry_over(previous: SplineSLAM, local: SplineSLAM, radius_m: float, max_sta
 
 def matching_shape(splines: list[MapSpline], config: SubmapConfig) -> SubmapShape:
     """The points loop closure matches a submap by: its splines sampled every
-    ``point_spacing_m``, but for those whose place in the submap is known to worse than
-    ``loop_distinct_m`` (:attr:`MapSpline.position_sigma`). Such a wall cannot tell two
-    distinct alignments apart, and a filter that lost itself maps walls metres off (the
-    Freiburg campus, a run with 1 mm of range noise: four loop closures turned 30° against
-    one such submap); they stay in the map."""
-    sure = [s.curve for s in splines if s.position_sigma <= config.loop_distinct_m]
+    ``point_spacing_m``; with ``loop_max_wall_sigma_m`` > 0 not those whose place in the
+    submap is known to worse than that (:attr:`MapSpline.position_sigma`). Such a wall
+    cannot tell two distinct alignments apart, and a filter that lost itself maps walls
+    metres off (the Freiburg campus, a run with 1 mm of range noise: four loop closures
+    turned 30° against one such submap); they stay in the map."""
+    limit = config.loop_max_wall_sigma_m
+    sure = [s.curve for s in splines if limit == 0 or s.position_sigma <= limit]
     return SubmapShape.from_curves(sure, config.point_spacing_m)
 
 
