@@ -70,6 +70,14 @@ def test_simulate_writes_every_output(tmp_path, caplog):
     assert len(gt) == 30
 
 
+def test_a_run_of_one_scan_completes_without_an_ate(tmp_path):
+    """ATE needs two poses to align; a run of one scan (the smallest ``--steps``, or one
+    interrupted at its first scan) writes its outputs and leaves ATE out instead of failing."""
+    invoke("simulate", "--world", "mixed", "--steps", 1, "--out", tmp_path)
+    summary = check_run_folder((tmp_path / "latest").resolve(), 1)
+    assert summary["status"] == "complete" and "ate_m" not in summary
+
+
 def test_simulate_list_names_the_worlds():
     out = invoke("simulate", "--list").output
     for name in ("rounded-room", "corridor-loop", "mixed", "curved-wall"):

@@ -63,7 +63,9 @@ def summarize(result: RunResult, reference: Trajectory | None = None, exact_refe
     if getattr(result, "submaps", None) is not None:
         # splines of two submaps on one wall are one surface: the map's walls counted once
         summary["surfaces"] = len({m.surface for m in result.map})
-    if ref is not None and len(ref) and result.steps:
+    # ATE aligns the trajectory rigidly, which takes two poses: a run of one scan (--steps 1,
+    # or one interrupted at its first) has none to report
+    if ref is not None and len(ref) and result.steps >= 2:
         rmse, matched, _ = ate(est, ref)
         summary["ate_m"] = round(float(rmse), 5)
         summary["ate_matched_poses"] = int(matched)
