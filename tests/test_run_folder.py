@@ -255,3 +255,32 @@ def test_a_signal_mid_run_ends_simulate_cleanly(tmp_path, sig):
     assert summary_of(stopped)["status"] == "interrupted"
     assert_whole(stopped)
     assert (tmp_path / "latest").resolve() == previous
+
+
+def test_a_signal_swallowed_in_a_ctypes_callback_is_silent_and_delivered_again():
+    """numba calls back into Python while it compiles; a signal landing there raises in the
+    callback, where the interpreter drops the exception (and prints it as a traceback). It
+    is delivered again, and nothing is printed. (In a subprocess: pytest catches dropped
+    exceptions itself.)"""
+    script = """
+import ctypes, os, signal
+from bsslam.cli import _deliver_swallowed_signal, signals_interrupt
+
+@ctypes.CFUNCTYPE(None)
+def callback():
+    os.kill(os.getpid(), signal.SIGINT)
+    for _ in range(1000):      # the handler runs at a bytecode boundary in here
+        pass
+
+with signals_interrupt():
+    callback()
+    try:
+        _deliver_swallowed_signal()
+    except KeyboardInterrupt as exc:
+        print("delivered", exc)
+"""
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "delivered SIGINT"
+    assert "Traceback" not in done.stderr and "Exception ignored" not in done.stderr, done.stderr

@@ -188,11 +188,21 @@ def signals_interrupt() -> Iterator[None]:
         _signalled.append(name)
         raise KeyboardInterrupt(name)
 
+    def unraisable(info):
+        # the signal's KeyboardInterrupt raised inside a ctypes callback (numba compiling)
+        # is dropped by the interpreter, which would print it as a traceback; it is kept in
+        # _signalled and delivered again by the next progress callback, so say nothing
+        if isinstance(info.exc_value, KeyboardInterrupt) and _signalled:
+            return
+        previous_hook(info)
+
     previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous_hook, sys.unraisablehook = sys.unraisablehook, unraisable
     try:
         yield
     finally:
         _signalled.clear()
+        sys.unraisablehook = previous_hook
         for sig, handler in previous.items():
             signal.signal(sig, handler)
 
