@@ -9,7 +9,7 @@ import pytest
 from scipy.stats import binom, chi2
 
 from bsslam.se2 import between, compose, inverse, inverse_with_covariance
-from bsslam.submaps.loop_support import CONSISTENT_CHI2, LoopEdge, chain, cycle_distance, is_supported
+from bsslam.submaps.loop_support import CONSISTENT_CHI2, LoopEdge, chain, cycle_distance, votes
 
 EDGE_SIGMA = np.array([0.05, 0.05, 0.01])      # m, m, rad: one submap's odometry-like constraint
 LOOP_SIGMA = np.array([0.03, 0.03, 0.005])     # a loop closure's match
@@ -96,16 +96,25 @@ def test_support_counts_neighbours_that_agree_against_those_that_do_not():
         copy of i's walls that far away."""
         return LoopEdge(i, k, between(bases[i], bases[k] + np.r_[shift, 0.0]), np.diag(LOOP_SIGMA ** 2))
 
+    def count(candidate, others, graph_edges=edges, distinct=(np.inf, np.inf)):
+        return votes(candidate, others, graph_edges, 3, *distinct)
+
     candidate = loop(1, 9)
-    assert not is_supported(candidate, [candidate], edges, reach=3)           # alone
-    assert is_supported(candidate, [candidate, loop(2, 10)], edges, reach=3)  # a right neighbour
-    # a right match beyond the reach is no support; nor is a wrong neighbour
-    assert not is_supported(candidate, [loop(5, 13)], edges, reach=3)
-    assert not is_supported(candidate, [loop(2, 10, (1.0, 0.0))], edges, reach=3)
+    assert count(candidate, [candidate]) == (0, 0)                   # alone: itself does not vote
+    assert count(candidate, [candidate, loop(2, 10)]) == (1, 0)      # a right neighbour agrees
+    # a right match beyond the reach does not vote; a wrong neighbour disagrees
+    assert count(candidate, [loop(5, 13)]) == (0, 0)
+    assert count(candidate, [loop(2, 10, (1.0, 0.0))]) == (0, 1)
     # more neighbours contradict it than agree: it is the odd one out
     many = [loop(2, 10), loop(0, 10, (1.0, 0.0)), loop(2, 11, (1.0, 0.0))]
-    assert not is_supported(candidate, many, edges, reach=3)
-    # two matches against the same copy agree with each other: the rule cannot tell a
+    assert count(candidate, many) == (1, 2)
+    # two matches against the same copy agree with each other: the vote cannot tell a
     # consistent pair of wrong ones (the graph's robust kernel is left with those)
-    assert is_supported(many[1], many[1:], edges, reach=3)
-    assert is_supported(candidate, many[:2], edges, reach=3) is False           # a tie is no support
+    assert count(many[1], many[1:]) == (1, 0)
+    # a cycle through a submap that lost itself (1 m, 0.3 rad of σ between submaps 1 and 2)
+    # cannot tell distinct alignments apart: it does not vote; precise edges do
+    lost = list(edges)
+    lost[1] = (edges[1][0], np.diag([1.0, 1.0, 0.09]))
+    distinct = (0.5, np.radians(10.0))
+    assert count(candidate, [loop(2, 10, (1.0, 0.0))], edges, distinct) == (0, 1)
+    assert count(candidate, [loop(2, 10, (1.0, 0.0))], lost, distinct) == (0, 0)

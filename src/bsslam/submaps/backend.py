@@ -302,9 +302,8 @@ class SubmapSLAM:
                 self.stats.loop_rejections[match.reason] = self.stats.loop_rejections.get(match.reason, 0) + 1
                 continue
             # a match beyond the graph's 99 % region claims drift the graph does not expect
-            offset = match.relative - guess
-            offset[2] = math.remainder(offset[2], 2 * math.pi)
-            surprising = not float(offset @ np.linalg.solve(_proper(cov), offset)) <= CONSISTENT_CHI2
+            # (read only by the vote between matches)
+            surprising = cfg.loop_support_submaps > 0 and _surprising(match.relative, guess, cov)
             found.append((LoopRecord(int(j), k, match.relative, match.covariance, match.inlier_fraction,
                                      match.overlap_m), window_m, surprising))
         return self._admit(k, found)
@@ -467,6 +466,14 @@ def matching_shape(splines: list[MapSpline], config: SubmapConfig) -> SubmapShap
     limit = config.loop_max_wall_sigma_m
     sure = [s.curve for s in splines if limit == 0 or s.position_sigma <= limit]
     return SubmapShape.from_curves(sure, config.point_spacing_m)
+
+
+def _surprising(relative: np.ndarray, guess: np.ndarray, covariance: np.ndarray) -> bool:
+    """``relative`` (3,) lies beyond the 99 % region of the graph's ``guess`` (3,) with
+    ``covariance`` (3, 3)."""
+    offset = relative - guess
+    offset[2] = math.remainder(offset[2], 2 * math.pi)
+    return not float(offset @ np.linalg.solve(_proper(covariance), offset)) <= CONSISTENT_CHI2
 
 
 def _edge(record: LoopRecord) -> LoopEdge:

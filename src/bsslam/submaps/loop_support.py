@@ -28,11 +28,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bsslam.chi2 import chi2_quantile
 from bsslam.se2 import compose_with_covariance, inverse_with_covariance
 
 #: χ²(3) at 99 %: a cycle within this squared Mahalanobis distance of the identity is
 #: consistent.
-CONSISTENT_CHI2 = 11.34
+CONSISTENT_CHI2 = chi2_quantile(0.99, 3)
 
 
 @dataclass(frozen=True)
@@ -77,7 +78,10 @@ def cycle(a: LoopEdge, b: LoopEdge, edges: Sequence[tuple[np.ndarray, np.ndarray
 
 def cycle_distance(a: LoopEdge, b: LoopEdge, edges: Sequence[tuple[np.ndarray, np.ndarray]]) -> float:
     """Squared Mahalanobis distance of :func:`cycle` from the identity."""
-    pose, cov = cycle(a, b, edges)
+    return _squared_distance(*cycle(a, b, edges))
+
+
+def _squared_distance(pose: np.ndarray, cov: np.ndarray) -> float:
     try:
         return float(pose @ np.linalg.solve(cov, pose))
     except np.linalg.LinAlgError:
@@ -109,20 +113,9 @@ def votes(candidate: LoopEdge, others: Sequence[LoopEdge], edges: Sequence[tuple
         if (scale * np.sqrt(np.linalg.eigvalsh(cov[:2, :2])[-1]) > distinct_m
                 or scale * np.sqrt(cov[2, 2]) > distinct_rad):
             continue
-        try:
-            d2 = float(pose @ np.linalg.solve(cov, pose))
-        except np.linalg.LinAlgError:
-            continue
-        if d2 <= CONSISTENT_CHI2:
+        if _squared_distance(pose, cov) <= CONSISTENT_CHI2:
             consistent += 1
         else:
             inconsistent += 1
     return consistent, inconsistent
 
-
-def is_supported(candidate: LoopEdge, others: Sequence[LoopEdge], edges: Sequence[tuple[np.ndarray, np.ndarray]],
-                 reach: int, distinct_m: float = np.inf, distinct_rad: float = np.inf) -> bool:
-    """True when more informative neighbouring matches agree with ``candidate`` than
-    contradict it, and at least one does (:func:`votes`)."""
-    consistent, inconsistent = votes(candidate, others, edges, reach, distinct_m, distinct_rad)
-    return consistent > inconsistent
