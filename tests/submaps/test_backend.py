@@ -21,7 +21,8 @@ from bsslam.sim import SimConfig, get_world, simulate
 from bsslam.slam import MapSpline
 from bsslam.slam.state import JointState
 from bsslam.spline import BSplineCurve
-from bsslam.submaps.backend import SURFACE_SPACING_M, SubmapSLAM, mark_surfaces, matching_shape, transform_spline
+from bsslam.submaps.backend import SURFACE_SPACING_M, SubmapSLAM, _proper, mark_surfaces, matching_shape, transform_spline
+from bsslam.submaps.pose_graph import _check_covariance
 from bsslam.submaps.loop_support import chain
 
 
@@ -241,3 +242,17 @@ def test_walls_a_lost_filter_mapped_take_no_part_in_loop_closure(double_loop):
     np.testing.assert_array_equal(shape.points, matching_shape(splines[2:], cfg).points)
     assert 0 < shape.points.shape[0] < full.points.shape[0]
     np.testing.assert_array_equal(matching_shape(lost + splines[2:], default).points, full.points)
+
+
+def test_a_clamped_loop_covariance_is_exactly_symmetric():
+    """A loop closure between walls known to tens of metres (a filter that lost itself) has
+    its x-y variance clamped to the search window's: two equal eigenvalues whose vectors
+    are arbitrary, and V diag(w) Vᵀ came out asymmetric in the last bits, which the graph
+    refuses (the Freiburg campus with 1 mm of range noise stopped on it)."""
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        a = rng.normal(size=(3, 3)) * 1e-3
+        cov = _proper(np.diag([400.0, 400.0, 0.44]) + a @ a.T, 12.0)
+        np.testing.assert_array_equal(cov, cov.T)
+        _check_covariance(cov, "loop covariance")
+        np.testing.assert_allclose(np.linalg.eigvalsh(cov)[1:], 144.0)

@@ -489,7 +489,9 @@ def _proper(cov: np.ndarray, max_sigma: float = 100.0) -> np.ndarray:
     cov = 0.5 * (np.asarray(cov, dtype=float) + np.asarray(cov, dtype=float).T)
     w, V = np.linalg.eigh(cov)
     w = np.clip(w, _ANCHOR_SIGMA ** 2, max_sigma ** 2)
-    return (V * w) @ V.T
+    cov = (V * w) @ V.T
+    # symmetric to the last bit: with eigenvalues 1e-12 to 1e4 apart the product is not
+    return 0.5 * (cov + cov.T)
 
 
 def transform_spline(spline: MapSpline, pose: np.ndarray, submap: int = 0) -> MapSpline:
