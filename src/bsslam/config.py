@@ -649,6 +649,13 @@ class SubmapConfig:
         carry_over_m: a new submap starts with the old one's splines that come within
             this distance of the robot (m), their covariance relative to it, instead of
             with one scan's splines; 0 starts every submap empty.
+        seam_drift_m_per_m: the local filter drifts by about this much per metre
+            travelled beyond what its covariance says (m/m): the constraint between a
+            submap's base and the next one's gets (this × the distance travelled in the
+            submap)² added to its x and y variance
+            (:func:`~bsslam.submaps.backend.seam_covariance`); 0 takes the filter's
+            covariance as it is.
+        seam_drift_rad_per_m: … and (this × the distance)² to its heading variance (rad/m).
         point_spacing_m: spacing of the points sampled on a frozen submap's splines for
             matching (m).
         loop_sigmas: a loop-closure search covers this many σ of the relative pose
@@ -717,6 +724,14 @@ class SubmapConfig:
             campus's median from 3.9 to 0.9 m, but three campus runs of eleven and the
             as-logged one are lost (23–64 m) to matches turned by 58–149°, against none
             beyond 12.2 m without it, so it is off (README, Limits).
+        loop_wall_covariance: a loop closure's covariance includes how well the matched
+            walls' places are known in their own submaps (the local filters' drift when
+            they saw them; :func:`~bsslam.submaps.loop_closure.matched_walls_covariance`),
+            not only how well the walls align. Without it a match between two submaps
+            each a few centimetres off inside carries a σ of 1 cm, and the graph bends its
+            seams to it (the simulated double loop's final pose 0.11 m off at NEES 295 with
+            ``gnc``). false: the alignment's covariance alone (the behaviour before
+            2026-12-04).
         loop_outliers: how the pose graph guards against a wrong loop closure that passed
             the checks above (one that looks right locally but that the rest of the graph
             contradicts): ``cauchy`` (default) puts every loop closure behind a Cauchy
@@ -738,8 +753,10 @@ class SubmapConfig:
 
     max_state_size: int = 400
     max_distance_m: float = 25.0
-    point_spacing_m: float = 0.05
     carry_over_m: float = 10.0
+    seam_drift_m_per_m: float = 0.01
+    seam_drift_rad_per_m: float = 0.001
+    point_spacing_m: float = 0.05
     loop_sigmas: float = 3.0
     loop_min_window_m: float = 2.0
     loop_max_window_m: float = 5.0
@@ -759,6 +776,7 @@ class SubmapConfig:
     loop_refine_points: int = 1500
     loop_support_submaps: int = 0
     loop_max_wall_sigma_m: float = 0.0
+    loop_wall_covariance: bool = True
     loop_outliers: LoopOutliers = "cauchy"
     robust_kernel_width: float = 3.0
     loop_inlier_probability: float = 0.99
@@ -768,6 +786,8 @@ class SubmapConfig:
                "submaps.max_state_size must be an integer ≥ 50")
         _check(self.max_distance_m > 0, "submaps.max_distance_m must be > 0")
         _check(0 <= self.carry_over_m <= 100.0, "submaps.carry_over_m must be in [0, 100] m")
+        _check(0 <= self.seam_drift_m_per_m <= 1.0, "submaps.seam_drift_m_per_m must be in [0, 1] m/m")
+        _check(0 <= self.seam_drift_rad_per_m <= 0.1, "submaps.seam_drift_rad_per_m must be in [0, 0.1] rad/m")
         _check(0 < self.point_spacing_m <= 1.0, "submaps.point_spacing_m must be in (0, 1] m")
         _check(self.loop_sigmas > 0, "submaps.loop_sigmas must be > 0")
         # The window is the correlative search's, bounded like the front end's.
@@ -794,6 +814,8 @@ class SubmapConfig:
                "submaps.loop_support_submaps must be an integer in [0, 100] (0: every verified match)")
         _check(0 <= self.loop_max_wall_sigma_m <= 100,
                "submaps.loop_max_wall_sigma_m must be in [0, 100] m (0: every wall)")
+        _check(isinstance(self.loop_wall_covariance, bool),
+               f"submaps.loop_wall_covariance must be true or false, got {self.loop_wall_covariance!r}")
         _check(self.loop_outliers in ("cauchy", "gnc"), "submaps.loop_outliers must be 'cauchy' or 'gnc'")
         _check(self.robust_kernel_width > 0, "submaps.robust_kernel_width must be > 0")
         _check(0 < self.loop_inlier_probability < 1, "submaps.loop_inlier_probability must be in (0, 1)")

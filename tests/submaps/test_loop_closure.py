@@ -19,7 +19,7 @@ from bsslam.config import SubmapConfig
 from bsslam.errors import ConfigError
 from bsslam.se2 import between, compose, inverse
 from bsslam.spline import BSplineCurve, fit_curve
-from bsslam.submaps.loop_closure import LoopMatch, SubmapShape, match_submaps
+from bsslam.submaps.loop_closure import LoopMatch, SubmapShape, match_submaps, matched_walls_covariance
 from bsslam.trajectory import wrap_angle
 
 CONFIG = SubmapConfig()
@@ -139,6 +139,63 @@ def test_noisy_submaps_recover_the_pose_within_the_covariance(seed):
     e = match.relative - TRUE
     e[2] = wrap_angle(e[2])
     assert float(e @ np.linalg.solve(match.covariance, e)) < chi2.ppf(0.999, 3)
+
+
+def _with_sigma(shape: SubmapShape, sigma_m: float) -> SubmapShape:
+    return dataclasses.replace(shape, sigma=np.full(shape.points.shape[0], sigma_m))
+
+
+def test_the_matched_walls_sigma_is_added_to_the_alignment_covariance(overlapping):
+    """The loop closure's covariance is the alignment's plus the matched walls' σ² of both
+    submaps (x and y) and the same over the lever arm (heading); with the option off, the
+    alignment's alone; the alignment itself does not change."""
+    reference, query = overlapping
+    guess = compose(TRUE, np.array([0.5, -0.4, math.radians(5.0)]))
+    args = (guess, GUESS_COV, 3.0, math.radians(30.0))
+    off = match_submaps(_with_sigma(reference, 0.03), _with_sigma(query, 0.04), *args,
+                        dataclasses.replace(CONFIG, loop_wall_covariance=False))
+    on = match_submaps(_with_sigma(reference, 0.03), _with_sigma(query, 0.04), *args, CONFIG)
+    assert on.ok and off.ok
+    np.testing.assert_array_equal(on.relative, off.relative)
+    added = on.covariance - off.covariance
+    np.testing.assert_allclose(added[:2, :2], (0.03 ** 2 + 0.04 ** 2) * np.eye(2), rtol=1e-9, atol=1e-15)
+    lever = math.sqrt((0.03 ** 2 + 0.04 ** 2) / added[2, 2])          # RMS radius of the matched points (m)
+    assert 2.0 < lever < 0.5 * max(18.0, 24.0)                       # the overlap is ~8 × 12 m
+    np.testing.assert_allclose(added[[0, 0, 1, 1], [1, 2, 0, 2]], 0.0, atol=1e-15)
+
+
+def test_matched_walls_covariance_of_nothing_is_zero_and_the_lever_at_least_a_metre():
+    assert not matched_walls_covariance(np.zeros(0), np.zeros(0), np.zeros((0, 2))).any()
+    near = matched_walls_covariance(np.full(3, 0.1), np.zeros(3), np.array([[0.0, 0.0], [0.1, 0.0], [0.0, 0.1]]))
+    np.testing.assert_allclose(np.diag(near), [0.01, 0.01, 0.01])
+
+
+def test_drifted_walls_stay_within_the_loop_closures_covariance():
+    """The query submap's walls all displaced by one drift drawn from N(0, σ² I) (a filter
+    that drifted while it mapped them), its walls saying σ: over 20 draws the loop closures'
+    position errors, weighed by their covariance, are χ²(2) (the sum within its 99.8 %
+    interval); without the walls' σ the same errors are far outside it."""
+    sigma, draws = 0.08, 20
+    rng = np.random.default_rng(7)
+    reference = _shape(BUILDING, -1, 15, REF_FRAME)
+    curves = _submap(BUILDING, 7, 25, QUERY_FRAME)
+    with_walls, alignment_only = 0.0, 0.0
+    for _ in range(draws):
+        drift = rng.normal(0.0, sigma, 2)
+        query = SubmapShape.from_curves([c.transformed(0.0, drift) for c in curves], SPACING,
+                                        np.full(len(curves), sigma))
+        # the walls drifted by ``drift`` in the query frame: the match finds the base moved by −drift
+        truth = compose(TRUE, np.r_[-drift, 0.0])
+        on = match_submaps(reference, query, TRUE, GUESS_COV, 2.0, math.radians(20.0), CONFIG)
+        off = match_submaps(reference, query, TRUE, GUESS_COV, 2.0, math.radians(20.0),
+                            dataclasses.replace(CONFIG, loop_wall_covariance=False))
+        assert on.ok and off.ok
+        e = (on.relative - TRUE)[:2]
+        with_walls += float(e @ np.linalg.solve(on.covariance[:2, :2], e))
+        alignment_only += float(e @ np.linalg.solve(off.covariance[:2, :2], e))
+        assert np.hypot(*(on.relative - truth)[:2]) < 0.01
+    assert chi2.ppf(0.001, 2 * draws) < with_walls < chi2.ppf(0.999, 2 * draws)
+    assert alignment_only > 10 * chi2.ppf(0.999, 2 * draws)
 
 
 def test_timing_of_one_wide_match(overlapping):

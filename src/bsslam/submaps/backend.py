@@ -66,7 +66,8 @@ class FrozenSubmap:
         splines: its splines in its own frame, each with its covariance block (m²).
         shape: the points sampled on them, for loop-closure matching.
         end_pose: (3,) the robot's pose at the freeze in the submap's frame (the next
-            submap's base), and ``end_covariance`` (3, 3) its covariance.
+            submap's base), and ``end_covariance`` (3, 3) its covariance: the local
+            filter's plus the drift it does not know of (:func:`seam_covariance`).
         filter_steps: scans the filter processed in it.
     """
 
@@ -256,7 +257,8 @@ class SubmapSLAM:
         local, k = self._local, self.submap_index
         splines = local.map
         cfg = self.config.submaps
-        frozen = FrozenSubmap(k, splines, matching_shape(splines, cfg), local.pose, local.pose_covariance, local.steps)
+        end_cov = seam_covariance(local.pose_covariance, self._distance, cfg)
+        frozen = FrozenSubmap(k, splines, matching_shape(splines, cfg), local.pose, end_cov, local.steps)
         self.frozen.append(frozen)
         self._frozen_bytes += frozen.nbytes
         self.graph.add_node(frozen.end_pose, _proper(frozen.end_covariance))
@@ -456,6 +458,24 @@ def carry_over(previous: SplineSLAM, local: SplineSLAM, radius_m: float, max_sta
     return len(near)
 
 
+def seam_covariance(filter_covariance: np.ndarray, distance_m: float, config: SubmapConfig) -> np.ndarray:
+    """(3, 3) the covariance of the odometry-like constraint between a submap's base and
+    the next one's: the local filter's pose covariance ``filter_covariance`` (3, 3) plus
+    ``seam_drift_m_per_m`` × ``distance_m`` squared in x and y and
+    ``seam_drift_rad_per_m`` × ``distance_m`` squared in heading.
+
+    The filter's covariance holds only the errors it models (independent beams, the
+    odometry's noise); what it leaves out — a wall fitted a little off, beams on one
+    surface sharing an error, the front end's corridor matches coming out short — biases
+    each scan the same way, so it grows with the distance travelled, not its square root.
+    On real logs the seams were off by several σ (Acapulco: 1.23 m where σ said 0.26 m),
+    and the graph then trusted them over the loop closures that would have corrected them.
+    """
+    d = float(distance_m)
+    drift = np.array([config.seam_drift_m_per_m * d, config.seam_drift_m_per_m * d, config.seam_drift_rad_per_m * d])
+    return np.asarray(filter_covariance, dtype=float) + np.diag(drift ** 2)
+
+
 def matching_shape(splines: list[MapSpline], config: SubmapConfig) -> SubmapShape:
     """The points loop closure matches a submap by: its splines sampled every
     ``point_spacing_m``; with ``loop_max_wall_sigma_m`` > 0 not those whose place in the
@@ -464,8 +484,9 @@ def matching_shape(splines: list[MapSpline], config: SubmapConfig) -> SubmapShap
     metres off (the Freiburg campus, a run with 1 mm of range noise: four loop closures
     turned 30° against one such submap); they stay in the map."""
     limit = config.loop_max_wall_sigma_m
-    sure = [s.curve for s in splines if limit == 0 or s.position_sigma <= limit]
-    return SubmapShape.from_curves(sure, config.point_spacing_m)
+    sure = [s for s in splines if limit == 0 or s.position_sigma <= limit]
+    return SubmapShape.from_curves([s.curve for s in sure], config.point_spacing_m,
+                                   [s.position_sigma for s in sure])
 
 
 def _surprising(relative: np.ndarray, guess: np.ndarray, covariance: np.ndarray) -> bool:
