@@ -21,8 +21,8 @@ again beside themselves. Here:
   a wide correlative search on the old submap's spline points, then verification). A
   verified match goes into the graph (with ``submaps.loop_support_submaps`` > 0 a
   surprising one first waits for a neighbouring match that agrees with it around the cycle
-  they close, :mod:`~bsslam.submaps.loop_support`), which down-weights (a Cauchy kernel, by default) or
-  sets aside (graduated non-convexity, ``submaps.loop_outliers: gnc``) the ones the rest
+  they close, :mod:`~bsslam.submaps.loop_support`), which sets aside (graduated non-convexity, by default) or
+  down-weights (a Cauchy kernel, ``submaps.loop_outliers: cauchy``) the ones the rest
   of the graph contradicts (see :mod:`~bsslam.submaps.pose_graph`).
 - **One map out.** Each submap's splines in its optimised frame; splines that lie on one
   another in two submaps are marked as one surface (:func:`mark_surfaces`).

@@ -12,7 +12,7 @@ solved incrementally by GTSAM's iSAM2.
   good locally as a right one (inlier fractions of 0.85–1.0 on the campus), so only the
   rest of the graph can tell it apart. Two ways, ``loop_outliers``:
 
-  ``cauchy`` (default): every loop factor carries a robust noise model, a Cauchy kernel
+  ``cauchy`` (this class's default; the submap configuration's is ``gnc``): every loop factor carries a robust noise model, a Cauchy kernel
   of width k (in whitened units, σ). Its weight 1 / (1 + (d/k)²) at a whitened residual d
   is ½ at d = k, and its influence (weight × d) peaks at d = k and then decays as k²/d, so
   a false loop tens of σ off pulls the graph with a small fraction of the force of a true
@@ -35,8 +35,8 @@ solved incrementally by GTSAM's iSAM2.
   of them off by 0.3–10 m; ``benchmarks/replay_pose_graph.py``) the Cauchy kernel leaves
   the bases 6.13 m off, no better than no loop closure at all (6.18 m), and GNC 0.87 m
   (0.72 m with only the right loop closures, known from the reference). It picks whole
-  consistent groups, though, and a wrong group can win (see the configuration's
-  ``loop_outliers``).
+  consistent groups, though, and a wrong group can win when the loop closures'
+  covariances are too small (see the configuration's ``loop_outliers``).
 
 Covariances at the interface are bsslam's: covariances of pose *coordinates*
 (x, y, φ) in the parent frame. GTSAM's are of its right tangent perturbation
