@@ -317,11 +317,16 @@ def test_bench_perturb_runs_seeded_noise_and_float32_and_reports_the_spread(tmp_
     a, b = (bench_log(log, SLAMConfig(), steps=8, perturbation=Perturbation(0.001, 0)) for _ in range(2))
     clean = bench_log(log, SLAMConfig(), steps=8)
     assert a.ate_m == b.ate_m and a.ate_m != clean.ate_m
-    rows = [BenchRow("x", 1, 0, 0, 0, 0, ate, 0, 0, 0, "-", 0, variant)
-            for ate, variant in [(0.1, "noise seed 0"), (0.3, "noise seed 1"), (0.2, "noise seed 2"), (0.5, "float32")]]
+    rows = [BenchRow("x", 1, 0, 0, 0, 0, ate, 0, 0, 0, "-", 0, variant, nees_outside_95=out, nees_median=nees)
+            for ate, variant, out, nees in [(0.1, "noise seed 0", 0.0, 1.0), (0.3, "noise seed 1", 0.1, 2.0),
+                                            (0.2, "noise seed 2", 0.3, 9.0), (0.5, "float32", 0.5, 4.0),
+                                            (0.9, "as logged", 0.9, 90.0)]]
     (st,) = stability(rows)
     assert (st.median_m, st.min_m, st.max_m, st.float32_m) == (0.2, 0.1, 0.3, 0.5)
     assert st.spread == pytest.approx(1.0) and st.worst_ratio == pytest.approx(2.5)
+    # the covariance's calibration over the noise and float32 runs (not the as-logged one)
+    assert (st.nees_median, st.outside_95) == (3.0, 0.2)
+    assert "online NEES" in out and "outside 95 %" in out
 
 
 def test_run_on_a_folder_runs_each_log_in_it(tmp_path):

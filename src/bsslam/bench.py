@@ -92,7 +92,10 @@ def perturbations(runs: int, sigma_m: float = 0.001) -> list[Perturbation]:
 
 @dataclass(frozen=True)
 class Stability:
-    """A log's ATE over its perturbed runs (m): median, least and most, and the float32 run's."""
+    """A log's ATE over its perturbed runs (m): median, least and most, and the float32 run's;
+    and how honest the online covariance was over all of them (noise and float32): the
+    median over the runs of each run's median pose NEES (2.37 is calibrated, χ²(3)) and of
+    its share of poses outside the 95 % region (:attr:`BenchRow.nees_outside_95`)."""
 
     log: str
     runs: int
@@ -100,6 +103,8 @@ class Stability:
     min_m: float
     max_m: float
     float32_m: float
+    nees_median: float = float("nan")
+    outside_95: float = float("nan")
 
     @property
     def spread(self) -> float:
@@ -119,9 +124,13 @@ def stability(rows: Sequence["BenchRow | BenchFailure"]) -> list[Stability]:
         noisy = np.array([r.ate_m for r in rows if isinstance(r, BenchRow) and r.log == log
                           and r.variant.startswith("noise")])
         f32 = [r.ate_m for r in rows if isinstance(r, BenchRow) and r.log == log and r.variant == "float32"]
+        runs = [r for r in rows if isinstance(r, BenchRow) and r.log == log
+                and (r.variant.startswith("noise") or r.variant == "float32")]
         if noisy.size:
             out.append(Stability(log, int(noisy.size), float(np.median(noisy)), float(noisy.min()), float(noisy.max()),
-                                 f32[0] if f32 else float("nan")))
+                                 f32[0] if f32 else float("nan"),
+                                 float(np.median([r.nees_median for r in runs])),
+                                 float(np.median([r.nees_outside_95 for r in runs]))))
     return out
 
 
