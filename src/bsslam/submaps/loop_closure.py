@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from bsslam.chi2 import chi2_quantile
 from bsslam.config import FrontendConfig, SubmapConfig
 from bsslam.errors import InputError
 from bsslam.frontend.scan_matcher import ReferenceMap, even_subset, transform_points, voxel_thin
@@ -55,7 +56,7 @@ MIN_AGREEING_FRACTION = 2.0 / 3.0
 MIN_LINE_RADIUS_M = 1.0
 #: χ²(3) at 99 %: an alternative alignment within this Mahalanobis distance² of the
 #: match (under its covariance) is not a rival.
-_ADMITTED_CHI2 = 11.34
+_ADMITTED_CHI2 = chi2_quantile(0.99, 3)
 #: Dense samples per point spacing when the curves are resampled by arc length.
 _DENSE_PER_SPACING = 8
 
