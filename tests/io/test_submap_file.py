@@ -57,3 +57,17 @@ def test_a_file_that_is_not_a_submap_is_an_input_error_naming_it(tmp_path):
     np.savez(tmp_path / "other.npz", x=np.zeros(3))
     with pytest.raises(InputError, match="other.npz"):
         read_submap(tmp_path / "other.npz")
+
+
+def test_a_file_written_before_the_walls_sigma_reads_it_as_unknown(frozen, tmp_path):
+    """Submap files from before the shape carried each point's wall σ: σ = 0, the rest as
+    written (a loop closure against it then counts only the other submap's walls)."""
+    path = tmp_path / "old.npz"
+    write_submap(path, frozen[0])
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files if k != "shape_sigma"}
+    np.savez(path, **arrays)
+    back = read_submap(path)
+    assert back.shape.sigma.shape == frozen[0].shape.points.shape[:1] and not back.shape.sigma.any()
+    assert frozen[0].shape.sigma.any()     # what was dropped was there
+    np.testing.assert_array_equal(back.shape.points, frozen[0].shape.points)

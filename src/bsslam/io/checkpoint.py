@@ -38,7 +38,7 @@ from bsslam.io.atomic_file import TEMP_SUFFIX, atomic_write
 
 CHECKPOINT_FILE = "checkpoint.pkl"
 #: Bumped whenever the header or the state's layout changes: an older checkpoint is refused.
-FORMAT = 2   # 2: the pose graph pickles its arguments by name (loop_outliers)
+FORMAT = 3   # 2: the pose graph pickles its arguments by name (loop_outliers); 3: a submap shape carries its walls' σ
 _MAGIC = "bsslam-checkpoint"
 
 

@@ -69,6 +69,8 @@ def read_submap(path: str | os.PathLike) -> FrozenSubmap:
             surface = int(a["spline_surface"][i])
             splines.append(MapSpline(int(a["spline_id"][i]), curve, a["covariances"][cs[i]:cs[i + 1]].reshape(m, m),
                                      submap=int(a["spline_submap"][i]), surface=None if surface < 0 else surface))
+        # files written before the shape carried its walls' σ read as σ = 0 (not known)
+        a.setdefault("shape_sigma", np.zeros(a["shape_points"].shape[0]))
         shape = SubmapShape(**{f.name: _scalar(a[f"shape_{f.name}"]) for f in dataclasses.fields(SubmapShape)})
         return FrozenSubmap(int(a["index"]), splines, shape, a["end_pose"], a["end_covariance"], int(a["filter_steps"]))
     except (OSError, KeyError, ValueError, IndexError) as exc:
