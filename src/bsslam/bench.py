@@ -121,11 +121,10 @@ def stability(rows: Sequence["BenchRow | BenchFailure"]) -> list[Stability]:
     """Per log, the ATE spread over the runs of :func:`perturbations` (logs in first-seen order)."""
     out = []
     for log in dict.fromkeys(r.log for r in rows if isinstance(r, BenchRow)):
-        noisy = np.array([r.ate_m for r in rows if isinstance(r, BenchRow) and r.log == log
-                          and r.variant.startswith("noise")])
-        f32 = [r.ate_m for r in rows if isinstance(r, BenchRow) and r.log == log and r.variant == "float32"]
         runs = [r for r in rows if isinstance(r, BenchRow) and r.log == log
                 and (r.variant.startswith("noise") or r.variant == "float32")]
+        noisy = np.array([r.ate_m for r in runs if r.variant.startswith("noise")])
+        f32 = [r.ate_m for r in runs if r.variant == "float32"]
         if noisy.size:
             out.append(Stability(log, int(noisy.size), float(np.median(noisy)), float(noisy.min()), float(noisy.max()),
                                  f32[0] if f32 else float("nan"),

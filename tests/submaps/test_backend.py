@@ -261,8 +261,7 @@ def test_a_clamped_loop_covariance_is_exactly_symmetric():
 
 def test_the_seam_covariance_adds_drift_linear_in_the_distance():
     """The constraint between two bases: the filter's covariance plus (rate × distance)²,
-    x and y from the metric rate, heading from the angular one; nothing with rates 0; and
-    what the frozen submap keeps, and the graph is given, is that covariance."""
+    x and y from the metric rate, heading from the angular one; nothing with rates 0."""
     rng = np.random.default_rng(0)
     a = rng.normal(size=(3, 3)) * 0.01
     filt = a @ a.T
@@ -274,6 +273,8 @@ def test_the_seam_covariance_adds_drift_linear_in_the_distance():
 
 
 def test_a_frozen_submap_keeps_the_seam_covariance(double_loop):
+    """What the frozen submap keeps (and the graph is given) carries the drift: without it
+    the first submap's end σ is a few mm (simulated walls), far below the drift bound."""
     data, result, _ = double_loop
     slam = result.submaps
     cfg = slam.config.submaps

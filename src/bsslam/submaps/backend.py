@@ -484,9 +484,10 @@ def matching_shape(splines: list[MapSpline], config: SubmapConfig) -> SubmapShap
     metres off (the Freiburg campus, a run with 1 mm of range noise: four loop closures
     turned 30° against one such submap); they stay in the map."""
     limit = config.loop_max_wall_sigma_m
-    sure = [s for s in splines if limit == 0 or s.position_sigma <= limit]
-    return SubmapShape.from_curves([s.curve for s in sure], config.point_spacing_m,
-                                   [s.position_sigma for s in sure])
+    sigmas = [s.position_sigma for s in splines]      # an eigen-decomposition per control point: once
+    sure = [i for i, sigma in enumerate(sigmas) if limit == 0 or sigma <= limit]
+    return SubmapShape.from_curves([splines[i].curve for i in sure], config.point_spacing_m,
+                                   [sigmas[i] for i in sure])
 
 
 def _surprising(relative: np.ndarray, guess: np.ndarray, covariance: np.ndarray) -> bool:
