@@ -358,6 +358,8 @@ CHECKPOINT_HELP = ("Save the run's whole state to checkpoint.pkl in its results 
                    "results. Removed when the run completes.")
 RESUME_HELP = ("Continue the run in this results folder from its last checkpoint (log and options from the "
                "checkpoint; no LOG): the same trajectory and map as a run never stopped.")
+PARALLEL_HELP = ("Read the log and run the scan-matching front end in a second process, ahead of the filter "
+                 "(with two or more cores): the same results, sooner.")
 #: run's options that --resume takes from the checkpoint, with their flags
 _RESUME_FIXED = {"log": "LOG", "config_file": "--config", "out": "--out", "mode": "--mode", "backend": "--backend",
                  "max_memory": "--max-memory", "fmt": "--format", "strict": "--strict", "steps": "--steps",
@@ -395,6 +397,7 @@ def run(
                                              help="Draw the splines' control points in map.png/map.svg."),
     checkpoint_every: str = typer.Option("60s", metavar="N|Ns|0", help=CHECKPOINT_HELP),
     resume: Optional[Path] = typer.Option(None, metavar="RUN_DIR", help=RESUME_HELP),
+    parallel: bool = typer.Option(True, "--parallel/--no-parallel", help=PARALLEL_HELP),
 ) -> None:
     """Run BS-SLAM on a laser log and write trajectory, map, grid and pictures."""
     options = dict(locals())  # every option of this call, for the runs of a folder's logs
@@ -412,7 +415,7 @@ def run(
     except BsslamError as exc:
         fail(exc)
     if resume is not None:
-        _resume_run(resume, every if _on_command_line(ctx, "checkpoint_every") else None)
+        _resume_run(resume, every if _on_command_line(ctx, "checkpoint_every") else None, parallel)
         return
     if log.is_dir() and not is_ros2_bag(log):
         try:
@@ -435,7 +438,7 @@ def run(
             header = CheckpointHeader(log=os.fspath(log.resolve()), log_sha256="", config=config.to_dict(),
                                       options=run_options)
             # the folder is made only once the log opens
-            _run_log(header, config, lambda: run_folder(out), every, viewer, place)
+            _run_log(header, config, lambda: run_folder(out), every, viewer, place, parallel=parallel)
     except KeyboardInterrupt as exc:
         interrupted(place.get("run_dir"), interrupt_reason(exc))
     except BsslamError as exc:
@@ -454,7 +457,7 @@ def _frozen_heap() -> Iterator[None]:
         gc.unfreeze()
 
 
-def _resume_run(run_dir: Path, every) -> None:
+def _resume_run(run_dir: Path, every, parallel: bool = True) -> None:
     """``bsslam run --resume RUN_DIR``: the run in RUN_DIR continued from its checkpoint,
     with its log and options (and its checkpoint interval unless ``every`` is given)."""
     from bsslam.config import SLAMConfig
@@ -467,60 +470,72 @@ def _resume_run(run_dir: Path, every) -> None:
             check_source(header)
             config = SLAMConfig.from_dict(header.config)
             every = every if every is not None else CheckpointEvery.parse(header.options.get("checkpoint_every", "60s"))
-            _run_log(header, config, lambda: resumed_run_folder(run_dir), every, None, {}, resume=True)
+            _run_log(header, config, lambda: resumed_run_folder(run_dir), every, None, {}, resume=True,
+                     parallel=parallel)
     except KeyboardInterrupt as exc:
         interrupted(run_dir, interrupt_reason(exc))
     except BsslamError as exc:
         fail(exc)
 
 
-def _run_log(header, config, folder, every, viewer: Optional[str], place: dict, resume: bool = False) -> None:
+def _run_log(header, config, folder, every, viewer: Optional[str], place: dict, resume: bool = False,
+             parallel: bool = True) -> None:
     """The body of ``bsslam run`` for one log, fresh or resumed from the checkpoint in the
     folder ``folder()`` yields (put in ``place["run_dir"]`` at once, for the message of an
     interruption): run, write the outputs, print the summary; exits 130 on a partial
-    result."""
-    from bsslam.io import open_dataset
-    from bsslam.io.checkpoint import Checkpointer, load_checkpoint
-    from bsslam.io.reader_config import ReaderConfig
-    from bsslam.io.trajectory_file import read_trajectory
-    from bsslam.outputs import write_outputs
-    from bsslam.pipeline import run_dataset
-    from bsslam.viz.rerun_viewer import open_viewer
+    result. ``parallel``: the reader and the front end in a second process when there
+    are two cores or more."""
+    from bsslam.helper_process import HelperProcess, can_prefetch
 
-    opts = header.options
-    log, steps = Path(header.log), opts["steps"]
-    data = open_dataset(log, format=opts["fmt"], strict=opts["strict"], scan_topic=opts["scan_topic"],
-                        odom_topic=opts["odom_topic"], reader_config=ReaderConfig(limits=config.input))
-    ref = read_trajectory(opts["reference"]) if opts["reference"] else None
-    header = dataclasses.replace(header, options={**opts, "checkpoint_every": str(every)})
-    with _frozen_heap(), folder() as run_dir:
-        place["run_dir"] = run_dir
-        mapper, start = None, 0
-        if resume:
-            saved, mapper = load_checkpoint(run_dir)
-            start = saved.next_frame
-        checkpointer = Checkpointer(run_dir, every, header, start_frame=start)
-        with progress_bar(f"{log.name}", steps, "scans") as update:
-            result = run_dataset(data, config, steps=steps, progress=update, total=steps,
-                                 relocalize_progress=next_phase(update, f"{log.name}: relocalising"),
-                                 viewer=open_viewer(viewer, run_dir) if viewer else None,
-                                 mapper=mapper, start=start, checkpoint=checkpointer)
-        extra = checkpointer.figures() | ({"resumed_at_frame": start} if resume else {})
-        summary = write_outputs(result, run_dir, config, reference=ref, title=f"BS-SLAM: {log.name}",
-                                show_control_points=opts["show_control_points"], extra=extra)
-        if summary.get("status") == "complete":
-            checkpointer.remove()   # a complete run needs none; a partial one can still be resumed
-    print_summary(summary, f"bsslam run {log}")
-    if result.skipped.total:
-        console.print(f"[yellow]skipped {result.skipped.total} input item(s):[/yellow] "
-                      + ", ".join(f"{k}: {v}" for k, v in result.skipped.counts.items()))
-        for ex in result.skipped.examples[:5]:
-            console.print(f"  {ex}")
-    if summary.get("status") == "interrupted" and checkpointer.path.exists():
-        console.print(f"continue it from its last checkpoint: bsslam run --resume {escape(str(run_dir))}",
-                      soft_wrap=True)
-    exit_if_partial(summary, run_dir)
-    console.print(f"results in [bold]{run_dir}[/bold]")
+    # its interpreter starts while this one imports the rest; after the frames it draws the map
+    helper = HelperProcess(preload=("bsslam.outputs", "bsslam.viz.map_figure")) if parallel and (os.cpu_count() or 1) > 1 else None
+    try:
+        from bsslam.io import open_dataset
+        from bsslam.io.checkpoint import Checkpointer, load_checkpoint
+        from bsslam.io.reader_config import ReaderConfig
+        from bsslam.io.trajectory_file import read_trajectory
+        from bsslam.outputs import write_outputs
+        from bsslam.pipeline import run_dataset
+        from bsslam.viz.rerun_viewer import open_viewer
+
+        opts = header.options
+        log, steps = Path(header.log), opts["steps"]
+        data = open_dataset(log, format=opts["fmt"], strict=opts["strict"], scan_topic=opts["scan_topic"],
+                            odom_topic=opts["odom_topic"], reader_config=ReaderConfig(limits=config.input))
+        ref = read_trajectory(opts["reference"]) if opts["reference"] else None
+        header = dataclasses.replace(header, options={**opts, "checkpoint_every": str(every)})
+        with _frozen_heap(), folder() as run_dir:
+            place["run_dir"] = run_dir
+            mapper, start = None, 0
+            if resume:
+                saved, mapper = load_checkpoint(run_dir)
+                start = saved.next_frame
+            checkpointer = Checkpointer(run_dir, every, header, start_frame=start)
+            with progress_bar(f"{log.name}", steps, "scans") as update:
+                result = run_dataset(data, config, steps=steps, progress=update, total=steps,
+                                     relocalize_progress=next_phase(update, f"{log.name}: relocalising"),
+                                     viewer=open_viewer(viewer, run_dir) if viewer else None,
+                                     mapper=mapper, start=start, checkpoint=checkpointer,
+                                     prefetch=helper if helper is not None and can_prefetch(data) else False)
+            extra = checkpointer.figures() | ({"resumed_at_frame": start} if resume else {})
+            summary = write_outputs(result, run_dir, config, reference=ref, title=f"BS-SLAM: {log.name}",
+                                    show_control_points=opts["show_control_points"], extra=extra, helper=helper)
+            if summary.get("status") == "complete":
+                checkpointer.remove()   # a complete run needs none; a partial one can still be resumed
+        print_summary(summary, f"bsslam run {log}")
+        if result.skipped.total:
+            console.print(f"[yellow]skipped {result.skipped.total} input item(s):[/yellow] "
+                          + ", ".join(f"{k}: {v}" for k, v in result.skipped.counts.items()))
+            for ex in result.skipped.examples[:5]:
+                console.print(f"  {ex}")
+        if summary.get("status") == "interrupted" and checkpointer.path.exists():
+            console.print(f"continue it from its last checkpoint: bsslam run --resume {escape(str(run_dir))}",
+                          soft_wrap=True)
+        exit_if_partial(summary, run_dir)
+        console.print(f"results in [bold]{run_dir}[/bold]")
+    finally:
+        if helper is not None:
+            helper.close()
 
 
 def _reference_sigma(value: Optional[str]) -> Optional[tuple[float, float]]:

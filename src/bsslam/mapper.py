@@ -20,18 +20,17 @@ so the loop never branches on "visualise?".
 from __future__ import annotations
 
 import dataclasses
-import functools
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Protocol
 
 import numpy as np
-from threadpoolctl import ThreadpoolController
 
+from bsslam.blas_threads import one_blas_thread
 from bsslam.config import SLAMConfig
 from bsslam.dataset import Frame, SkipCounter
 from bsslam.errors import InputError
-from bsslam.frontend import LaserOdometry, UpdateSchedule
+from bsslam.frontend import FrontendStep, LaserOdometry, UpdateSchedule
 from bsslam.input_limits import InputLimits, OdometryGate, angles_problem, invalid_ranges, offset_problem
 from bsslam.scan import LaserScan
 from bsslam.se2 import between, compose, compose_with_covariance
@@ -65,9 +64,12 @@ class RunResult:
             when the front end is off.
         ground_truth: the dataset's reference, if it has one.
         map: the final map splines with their covariance blocks.
-        wall_time_s: time spent in the filter (s), both passes, excluding reading the input.
+        wall_time_s: time spent in this process on the scans (s), both passes, excluding
+            reading the input.
         relocalize_time_s: of which the second pass (s).
-        step_times_s: (N,) time spent on each scan (s): front end and, where it ran, filter.
+        step_times_s: (N,) time spent on each scan (s): front end and, where it ran, filter;
+            the front end not included on the scans it matched in a helper process
+            (``totals["frontend_in_helper"]`` counts them).
         state_sizes: (N,) state dimension after each step.
         totals: summed counters of the step reports (beams used/dropped, new/extended splines …).
         nis: (N,) NIS of each step's update and (N,) its degrees of freedom.
@@ -184,7 +186,7 @@ class _OdometryMotion:
     def __init__(self) -> None:
         self._prev: np.ndarray | None = None
 
-    def next(self, frame: Frame):
+    def next(self, frame: Frame, step: FrontendStep | None = None):
         """(run the filter?, increment or None, its covariance or None, counter or None)."""
         delta = None if self._prev is None else between(self._prev, frame.odometry)
         self._prev = np.asarray(frame.odometry, dtype=float)
@@ -201,9 +203,14 @@ class _FrontendMotion:
     def __init__(self, config) -> None:
         self.odometry = LaserOdometry(config)
         self.schedule = UpdateSchedule(config.update_distance_m, config.update_angle_rad)
+        self._pose: np.ndarray | None = None
 
-    def next(self, frame: Frame):
-        matched = self.odometry.step(frame)
+    def next(self, frame: Frame, step: FrontendStep | None = None):
+        """As :meth:`_OdometryMotion.next`; ``step`` is the front end's step on ``frame``
+        when it ran elsewhere (:mod:`bsslam.helper_process`), which leaves
+        :attr:`odometry` behind until its state is handed over."""
+        matched = self.odometry.step(frame) if step is None else step
+        self._pose = matched.pose
         if matched.increment is None:  # the first frame
             return True, None, None, None
         key = "frontend_fallbacks" if matched.fallback else "frontend_matched"
@@ -218,20 +225,7 @@ class _FrontendMotion:
 
     def pose(self) -> np.ndarray:
         """The front end's own pose (3,) after the last frame."""
-        return self.odometry.pose.copy()
-
-
-@functools.cache
-def _blas_controller() -> ThreadpoolController:
-    return ThreadpoolController()     # scanning the loaded libraries takes ~10 ms: once per process
-
-
-def _one_blas_thread():
-    """A context in which BLAS runs on one thread. The per-scan matrices are small
-    (hundreds of rows): BLAS threads only add overhead, under load they make a 170×170
-    Cholesky 100× slower, and the thread count must not change the numbers between two
-    runs of the same data."""
-    return _blas_controller().limit(limits=1, user_api="blas")
+        return self._pose.copy()
 
 
 class Mapper:
@@ -306,6 +300,18 @@ class Mapper:
         return [] if self._slam is None else self._slam.curves
 
     @property
+    def frontend(self) -> LaserOdometry | None:
+        """The laser-odometry front end (None when ``config.frontend.enabled`` is off). Set
+        it to hand over the state of a front end that ran in another process."""
+        return self._motion.odometry if isinstance(self._motion, _FrontendMotion) else None
+
+    @frontend.setter
+    def frontend(self, odometry: LaserOdometry) -> None:
+        if not isinstance(self._motion, _FrontendMotion):
+            raise ValueError("this mapper runs without a front end (config.frontend.enabled is off)")
+        self._motion.odometry = odometry
+
+    @property
     def scans(self) -> int:
         """The number of scans added."""
         return len(self._records)
@@ -353,13 +359,20 @@ class Mapper:
         ranges, _, _ = invalid_ranges(scan.ranges)   # negative → NaN (a failed beam)
         return Frame(frame.stamp, odometry, dataclasses.replace(scan, ranges=ranges), frame.laser_offset)
 
-    def add_frame(self, frame: Frame) -> PoseEstimate:
+    def add_frame(self, frame: Frame, frontend_step: FrontendStep | None = None) -> PoseEstimate:
         """:meth:`add` for a frame a reader has already checked against the input limits
         (every :class:`~bsslam.dataset.Dataset` of :mod:`bsslam.io` and the simulator):
-        the checks run once, at the boundary where the data entered."""
+        the checks run once, at the boundary where the data entered.
+
+        Args:
+            frontend_step: the front end's step on this frame, when it ran in another
+                process (:meth:`~bsslam.helper_process.HelperProcess.prefetch`); the mapper's
+                own :attr:`frontend` is then not advanced (hand the other process's state
+                over by setting it). Ignored when the front end is off.
+        """
         scan, odometry, offset = frame.scan, frame.odometry, frame.laser_offset
-        with _one_blas_thread():
-            record = self._step(frame)
+        with one_blas_thread():
+            record = self._step(frame, frontend_step)
         self._records.append(record)      # the scan is recorded whole, or not at all
         self._odometry = odometry
         estimate = PoseEstimate(record.stamp, record.pose.copy(), record.covariance.copy(), record.replay.scan is not None)
@@ -377,7 +390,7 @@ class Mapper:
             self._initial_pose if self._initial_pose is not None else np.zeros(3))
         return start if increment is None else compose(start, _pose(increment, "odometry_increment"))
 
-    def _step(self, frame: Frame) -> _Record:
+    def _step(self, frame: Frame, frontend_step: FrontendStep | None = None) -> _Record:
         """The front end, the update schedule and (on the scans it picks) the filter."""
         if self._slam is None:
             start = frame.odometry if self._initial_pose is None else self._initial_pose
@@ -387,7 +400,7 @@ class Mapper:
         if self._first is None:
             self._first = slam.pose, slam.pose_covariance
         t0 = time.perf_counter()
-        run_filter, delta, delta_cov, counter = self._motion.next(frame)
+        run_filter, delta, delta_cov, counter = self._motion.next(frame, frontend_step)
         if run_filter:
             report = slam.step(delta, frame.scan, frame.laser_offset, odometry_covariance=delta_cov)
             pose, cov = slam.pose, slam.pose_covariance
@@ -398,6 +411,8 @@ class Mapper:
             replay = _Replayed(*self._motion.since_update())
         step_time = time.perf_counter() - t0
         counts = {} if counter is None else {counter: 1}
+        if frontend_step is not None and counter is not None:   # its match's time is the helper's
+            counts["frontend_in_helper"] = 1
         if report is not None:
             _add_report(counts, report)
         submap = 0
@@ -438,7 +453,7 @@ class Mapper:
         submaps = self._slam if isinstance(self._slam, SubmapSLAM) else None
         if submaps is not None and not interrupted:
             t0 = time.perf_counter()
-            with _one_blas_thread():
+            with one_blas_thread():
                 submaps.finish()     # the last submap frozen, its loop closures found
             if records:      # counted as the last scan's time: it is part of the first pass
                 records[-1] = dataclasses.replace(records[-1], step_time_s=records[-1].step_time_s
@@ -450,7 +465,7 @@ class Mapper:
         if self.config.relocalize and n and not interrupted:
             t0 = time.perf_counter()
             try:
-                with _one_blas_thread():
+                with one_blas_thread():
                     if submaps is not None:
                         relocalized, points = relocalize_submaps(submaps, records, self.config, point_stride,
                                                                  progress)

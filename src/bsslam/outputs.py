@@ -12,6 +12,7 @@ import numpy as np
 
 from bsslam.config import SLAMConfig
 from bsslam.eval import ate, pose_errors
+from bsslam.helper_process import HelperProcess
 from bsslam.io.atomic_file import atomic_write
 from bsslam.io.config_file import write_config
 from bsslam.io.grid import build_occupancy_grid, write_grid
@@ -106,7 +107,7 @@ def write_vector_maps(run_dir: Path, splines) -> None:
 def write_steps_csv(path: Path, result: RunResult) -> None:
     """``steps.csv``: one row per scan — stamp (s), the time spent on it (ms: front end and,
     where it ran, the filter; a submap's freeze and loop closure count on the scan that
-    ended it), the state dimension after it, its submap (0 with ``backend: ekf``), the
+    ended it; the front end not included where a helper process ran it), the state dimension after it, its submap (0 with ``backend: ekf``), the
     update's NIS and its degrees of freedom (0: no filter step)."""
     submap = getattr(result, "step_submaps", None)
     submap = np.zeros(result.steps, dtype=int) if submap is None else submap
@@ -117,12 +118,29 @@ def write_steps_csv(path: Path, result: RunResult) -> None:
             f.write(f"{row[0]:.6f},{1000 * row[1]:.4f},{row[2]},{row[3]},{row[4]:.6g},{row[5]}\n")
 
 
+def _save_map_figure(*args, **kwargs):
+    """:func:`bsslam.viz.save_map_figure`, imported when called: a process whose picture a
+    helper process draws never imports matplotlib (most of a second)."""
+    from bsslam.viz.map_figure import save_map_figure
+
+    return save_map_figure(*args, **kwargs)
+
+
+def _now(fn, *args, **kwargs):
+    """``fn(*args, **kwargs)`` called now, as :meth:`HelperProcess.call` would later: a
+    function returning its result."""
+    value = fn(*args, **kwargs)
+    return lambda: value
+
+
 def write_outputs(result: RunResult, run_dir: Path, config: SLAMConfig, *, walls=None,
                   reference: Trajectory | None = None, exact_reference: bool = False,
-                  title: str = "", show_control_points: bool = False, extra: dict | None = None) -> dict:
+                  title: str = "", show_control_points: bool = False, extra: dict | None = None,
+                  helper: HelperProcess | None = None) -> dict:
     """Write every output file into ``run_dir`` and return the summary; the pictures show
     the splines' control points when ``show_control_points``; ``extra`` entries are added
-    to the summary (e.g. the checkpoints' figures).
+    to the summary (e.g. the checkpoints' figures). With a ``helper`` process, the map
+    picture is drawn there while this process writes the other files.
 
     Each file is written atomically; ``summary.json`` comes last, so its presence with
     ``"status": "complete"`` says every other file is there and whole
@@ -130,9 +148,15 @@ def write_outputs(result: RunResult, run_dir: Path, config: SLAMConfig, *, walls
     ``interrupted`` (the scans before a Ctrl-C or SIGTERM) is written the same way with
     ``"status": "interrupted"``.
     """
-    from bsslam.viz import save_map_figure
-
     run_dir = Path(run_dir)
+    ref = reference if reference is not None else result.ground_truth
+    curves = [m.curve for m in result.map]
+    figure = (helper.call if helper is not None else _now)(
+        _save_map_figure, [run_dir / "map.png", run_dir / "map.svg"], walls=walls, curves=curves,
+        true_poses=None if ref is None else ref.poses, est_poses=result.trajectory.poses,
+        est_covariances=result.trajectory.covariances, odom_poses=result.odometry.poses,
+        points=result.points if len(result.points) else None, title=title or result.name,
+        control_points=show_control_points)
     write_config(run_dir / "config.yaml", config)
     write_tum(run_dir / "trajectory.tum", result.trajectory)
     write_pose_covariance_csv(run_dir / "pose_covariance.csv", result.trajectory)
@@ -146,17 +170,9 @@ def write_outputs(result: RunResult, run_dir: Path, config: SLAMConfig, *, walls
     if result.ground_truth is not None:
         write_tum(run_dir / "ground_truth.tum", result.ground_truth)
     write_map_json(run_dir / "map.json", result.map)
-    curves = [m.curve for m in result.map]
     write_run_grid(result, run_dir, config)
     write_vector_maps(run_dir, result.map)
-    ref = reference if reference is not None else result.ground_truth
-    save_map_figure(
-        [run_dir / "map.png", run_dir / "map.svg"], walls=walls, curves=curves,
-        true_poses=None if ref is None else ref.poses, est_poses=result.trajectory.poses,
-        est_covariances=result.trajectory.covariances, odom_poses=result.odometry.poses,
-        points=result.points if len(result.points) else None, title=title or result.name,
-        control_points=show_control_points,
-    )
+    figure()    # the picture is written (or its error raised) before the summary says complete
     summary = {**summarize(result, reference, exact_reference), **(extra or {})}
     if getattr(result, "interrupted", False):
         why = getattr(result, "stop_reason", None) or "interrupted"
