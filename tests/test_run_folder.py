@@ -284,3 +284,45 @@ with signals_interrupt():
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "delivered SIGINT"
     assert "Traceback" not in done.stderr and "Exception ignored" not in done.stderr, done.stderr
+
+
+def test_a_signal_while_numba_loads_its_implementations_is_raised_after_the_load():
+    """numba loads its implementations at the first kernel call by importing modules that
+    register themselves; a KeyboardInterrupt in the middle leaves them half-registered and
+    every later kernel call fails ("duplicate registration"). The command line loads them
+    on entering its signal handling, with the signals held: a signal during the load is
+    raised once it is done, and numba still compiles. (In a subprocess: the signal must not
+    reach pytest.)"""
+    script = """
+import os, signal
+import bsslam.compiled as compiled
+from bsslam.cli import signals_interrupt
+
+loaded = []
+real_load = compiled.load_compiler_registries
+
+def load():
+    os.kill(os.getpid(), signal.SIGTERM)
+    for _ in range(1000):      # the handler runs at a bytecode boundary in here
+        pass
+    real_load()
+    loaded.append(True)
+
+compiled.load_compiler_registries = load
+try:
+    with signals_interrupt():
+        print("not interrupted")
+except KeyboardInterrupt as exc:
+    print("interrupted", exc, loaded)
+
+from numba import njit
+
+@njit
+def twice(x):
+    return 2.0 * x
+print(twice(1.5))
+"""
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split("\n")[:2] == ["interrupted SIGTERM [True]", "3.0"], done.stdout

@@ -178,15 +178,23 @@ def fail(exc: Exception) -> None:
 def signals_interrupt() -> Iterator[None]:
     """While inside, SIGTERM (and SIGINT) raise KeyboardInterrupt naming the signal, so a
     ``kill`` ends a run as cleanly as a Ctrl-C: the run folder is marked and what results
-    exist are written. Only the main thread may set handlers; elsewhere this does nothing."""
+    exist are written. Only the main thread may set handlers; elsewhere this does nothing.
+
+    On entry it loads numba's implementations (:func:`bsslam.compiled.load_compiler_registries`)
+    with the signals held: a signal raised while numba half-loads them would break every
+    kernel call after it, the writing of the results so far included."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    from bsslam.compiled import load_compiler_registries
+
+    holding = False
 
     def interrupt(signum, frame):
         name = signal.Signals(signum).name
         _signalled.append(name)
-        raise KeyboardInterrupt(name)
+        if not holding:
+            raise KeyboardInterrupt(name)
 
     def unraisable(info):
         # the signal's KeyboardInterrupt raised inside a ctypes callback (numba compiling)
@@ -199,6 +207,10 @@ def signals_interrupt() -> Iterator[None]:
     previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
     previous_hook, sys.unraisablehook = sys.unraisablehook, unraisable
     try:
+        holding = True    # a signal now is raised once numba's tables are whole
+        load_compiler_registries()
+        holding = False
+        _deliver_swallowed_signal()
         yield
     finally:
         _signalled.clear()

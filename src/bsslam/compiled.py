@@ -32,3 +32,16 @@ def needs_compiling(kernel) -> bool:
         return not os.path.exists(kernel._cache._cache_file._index_path)
     except AttributeError:
         return False
+
+
+def load_compiler_registries() -> None:
+    """Load numba's own implementations now (about half a second, paid anyway at the first
+    kernel call). numba loads them lazily at that call, importing some thirty of its modules
+    that register themselves in global tables; an exception raised in the middle (a Ctrl-C,
+    or a SIGTERM the command line turns into one) leaves a module half-registered, and the
+    next kernel call, e.g. while the results so far are written, fails with numba's
+    "duplicate registration". A caller that raises on signals calls this first, with the
+    signals held."""
+    from numba.core.registry import cpu_target
+
+    cpu_target.target_context.refresh()
