@@ -12,9 +12,11 @@ case must end in one of two ways:
 never a traceback, a hang, NaN in a file or an empty result called success. The run
 prints a table of outcomes by kind (``pytest -s``).
 
-The map pictures are replaced by a no-op here (matplotlib costs seconds per run and the
-pictures only draw the trajectory checked here); one test draws them for real on a
-bridged log.
+The runs are in one process (``--no-parallel``), where the map pictures are replaced by a
+no-op (matplotlib costs seconds per run and the pictures only draw the trajectory checked
+here); one test draws them for real on a bridged log. Each kind runs once more through the
+helper process (the default ``--parallel``), handed over at the first frame: its errors
+and skips must come out the same.
 """
 
 from __future__ import annotations
@@ -31,8 +33,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-import bsslam.viz
+import bsslam.outputs
 from bsslam.cli import app
+from bsslam.outputs import _save_map_figure
+from bsslam.helper_process import HelperProcess
 from bsslam.sim import SimConfig, get_world, simulate
 
 N_SCANS = 6
@@ -282,7 +286,16 @@ TABLE: dict[str, Counter] = {}
 
 @pytest.fixture(autouse=True)
 def _no_pictures(monkeypatch):
-    monkeypatch.setattr(bsslam.viz, "save_map_figure", lambda *args, **kwargs: None)
+    monkeypatch.setattr(bsslam.outputs, "_save_map_figure", lambda *args, **kwargs: None)
+
+
+@pytest.fixture
+def _helper_from_the_first_frame(monkeypatch):
+    """Runs wait for their helper process and hand it every frame (by default a run goes on
+    in this process until the helper's interpreter is up: after these short logs). The
+    helper draws the map pictures (not replaced there: its process is not patched)."""
+    monkeypatch.setattr(HelperProcess, "ready", lambda self: self.wait_ready(120))
+    monkeypatch.setattr(bsslam.outputs, "_save_map_figure", _save_map_figure)
 
 
 @pytest.fixture(scope="module")
@@ -292,9 +305,9 @@ def config_file(tmp_path_factory):
     return path
 
 
-def run_cli(log: Path, out: Path, config: Path, *extra: str):
+def run_cli(log: Path, out: Path, config: Path, *extra: str, parallel: bool = False):
     return runner.invoke(app, ["run", str(log), "--out", str(out), "--config", str(config),
-                               "--steps", "1000", *extra])
+                               "--steps", "1000", "--parallel" if parallel else "--no-parallel", *extra])
 
 
 def check_outcome(result, log: Path, out: Path, expected) -> str:
@@ -344,12 +357,23 @@ def test_corrupted_carmen_log(tmp_path, config_file, kind, seed):
         TABLE.setdefault(kind, Counter())[outcome] += 1
 
 
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_corrupted_carmen_log_read_by_the_helper_process(tmp_path, config_file, kind, _helper_from_the_first_frame):
+    rng = np.random.default_rng([0, sum(map(ord, kind))])
+    content, expected = KINDS[kind](rng)
+    log = tmp_path / "log.clf"
+    log.write_bytes(content)
+    result = run_cli(log, tmp_path / "out", config_file, parallel=True)
+    check_outcome(result, log, tmp_path / "out", expected)
+
+
+@pytest.mark.parametrize("parallel", [False, True])
 @pytest.mark.parametrize("kind", ["nan odometry x", "huge odometry x", "wrong beam count"])
-def test_strict_mode_stops_with_file_and_line(tmp_path, config_file, kind):
+def test_strict_mode_stops_with_file_and_line(tmp_path, config_file, kind, parallel, _helper_from_the_first_frame):
     content, _ = KINDS[kind](np.random.default_rng(1))
     log = tmp_path / "log.clf"
     log.write_bytes(content)
-    result = run_cli(log, tmp_path / "out", config_file, "--strict")
+    result = run_cli(log, tmp_path / "out", config_file, "--strict", parallel=parallel)
     assert result.exit_code == 2 and isinstance(result.exception, SystemExit), result.output
     errors = [ln for ln in result.output.splitlines() if ln.startswith("error:")]
     assert len(errors) == 1 and re.search(re.escape(str(log)) + r":\d+: ", errors[0]), result.output

@@ -161,6 +161,9 @@ def test_a_call_runs_in_the_helper_and_raises_its_error_here():
             waiting()
         assert isinstance(error.value.__cause__, RemoteTraceback) and "Traceback" in str(error.value.__cause__)
         assert helper.call(operator.add, "a", "b")() == "ab"      # it goes on after an error
+        here = []
+        assert helper.call(lambda: here.append(1) or len(here))() == 1   # a lambda does not pickle: run here
+        assert helper.call(operator.mul, 6, 7)() == 42                   # and the helper still takes calls
 
 
 def test_a_dataset_that_does_not_pickle_cannot_be_prefetched(room):
@@ -173,3 +176,13 @@ def test_the_pipeline_imports_no_plotting():
     code = "import sys, bsslam.pipeline, bsslam.outputs; print('matplotlib' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"
+
+
+def test_wait_ready_waits_for_the_interpreter_and_says_no_for_a_dead_one():
+    with HelperProcess() as helper:
+        assert helper.wait_ready(120) and helper.ready()
+    helper = HelperProcess()
+    helper._process.kill()      # before it could say it was ready
+    helper._process.join()
+    assert not helper.wait_ready(120) and not helper.ready()
+    helper.close()

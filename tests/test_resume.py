@@ -20,6 +20,7 @@ from typer.testing import CliRunner
 
 from bsslam.cli import app
 from bsslam.errors import ConfigError, InputError
+from bsslam.helper_process import HelperProcess
 from bsslam.io.checkpoint import (CHECKPOINT_FILE, CheckpointEvery, Checkpointer, CheckpointHeader, load_checkpoint,
                                   read_header, source_digest)
 from bsslam.slam.state import JointState
@@ -209,9 +210,13 @@ def test_a_crashed_run_resumed_writes_the_same_files(backend, checkpoint_at, cra
             raise _Crash
 
     monkeypatch.setattr(Checkpointer, "__call__", crash_later)
+    # in one process: with a helper, a checkpoint waits for the front end's state, which
+    # comes a few frames later or many, as the two processes' speeds have it
+    # (tests/test_helper_process.py checkpoints through a helper at set frames)
     with pytest.raises(_Crash):
         runner.invoke(app, [str(a) for a in ("run", log, "--config", config, "--backend", backend, "--steps", steps,
-                                             "--out", tmp_path, "-q", "--checkpoint-every", checkpoint_at)])
+                                             "--out", tmp_path, "-q", "--checkpoint-every", checkpoint_at,
+                                             "--no-parallel")])
     monkeypatch.undo()
     (run,) = [p for p in tmp_path.iterdir() if p.is_dir()]
     assert read_header(run).next_frame == checkpoint_at and not (tmp_path / "latest").exists()
@@ -237,7 +242,7 @@ def test_an_interrupted_run_keeps_its_checkpoint_and_says_how_to_resume(room, un
 
     monkeypatch.setattr(Checkpointer, "__call__", interrupt_later)
     result = cli("run", log, "--config", config, "--backend", "ekf", "--steps", 90, "--out", tmp_path, "-q",
-                 "--checkpoint-every", 30, code=130)
+                 "--checkpoint-every", 30, "--no-parallel", code=130)   # in one process: as above
     monkeypatch.undo()
     (run,) = [p for p in tmp_path.iterdir() if p.is_dir()]
     assert f"bsslam run --resume {run}" in result.output
@@ -247,13 +252,20 @@ def test_an_interrupted_run_keeps_its_checkpoint_and_says_how_to_resume(room, un
     assert_same_results(uninterrupted["ekf"], run)
 
 
-def test_a_run_in_one_process_writes_the_same_files_as_one_with_a_helper(room, uninterrupted, tmp_path):
+def test_a_run_in_one_process_writes_the_same_files_as_one_with_a_helper(room, uninterrupted, tmp_path,
+                                                                          monkeypatch):
     """``--no-parallel``: no helper process for the reader, the front end and the map
-    picture; the same results (the reference ran with the default, ``--parallel``)."""
+    picture; ``--parallel`` (the default) with the helper taking every frame (the run
+    waits for it to start): the same files."""
     log, config = room
-    cli("run", log, "--config", config, "--backend", "submaps", "--steps", 265, "--out", tmp_path, "-q",
-        "--checkpoint-every", 0, "--no-parallel")
-    assert_same_results(uninterrupted["submaps"], (tmp_path / "latest").resolve())
+    args = ("run", log, "--config", config, "--backend", "submaps", "--steps", 265, "-q", "--checkpoint-every", 0)
+    cli(*args, "--out", tmp_path / "one", "--no-parallel")
+    monkeypatch.setattr(HelperProcess, "ready", lambda self: self.wait_ready(120))
+    result = cli(*args, "--out", tmp_path / "two", "--parallel")
+    two = (tmp_path / "two" / "latest").resolve()
+    assert json.loads((two / "summary.json").read_text())["frontend_in_helper"] == 264, result.output
+    for run in (tmp_path / "one", tmp_path / "two"):
+        assert_same_results(uninterrupted["submaps"], (run / "latest").resolve())
 
 
 def test_resume_refuses_a_changed_log_a_missing_checkpoint_and_options_of_its_own(room, uninterrupted, tmp_path):

@@ -122,9 +122,14 @@ class HelperProcess:
 
     def ready(self) -> bool:
         """Whether the process has started and can take a job at once (never waits)."""
+        return self.wait_ready(0)
+
+    def wait_ready(self, timeout: float | None = None) -> bool:
+        """Wait until the process can take a job (at most ``timeout`` s; None: as long as it
+        takes); whether it can. A run that waits for it hands every frame to it."""
         if not self._ready and not self._broken:
             try:
-                if self._receiver.poll():
+                if self._receiver.poll(timeout):
                     self._ready = self._receiver.recv()[0] == "ready"
             except (EOFError, OSError):    # it died while starting: it never will be
                 self._broken = True
@@ -169,18 +174,24 @@ class HelperProcess:
     # -- calls ----------------------------------------------------------------------------
     def call(self, fn: Callable[..., Any], *args, **kwargs) -> Callable[[], Any]:
         """Start ``fn(*args, **kwargs)`` in the second process (``fn`` and the arguments
-        must pickle); returns a function that waits for its result (or raises its
-        error). When the process cannot take it (stopped, ended), ``fn`` runs here, now."""
-        if self._broken or not self._process.is_alive():
+        should pickle); returns a function that waits for its result (or raises its
+        error). When the process cannot take it (stopped, ended) or the call does not
+        pickle, ``fn`` runs here, now."""
+        if not self._broken and self._process.is_alive():
             try:
-                value = fn(*args, **kwargs)
-            except BaseException as exc:
-                def fail():
-                    raise exc
-                return fail
-            return lambda: value
-        self._send(("call", fn, args, kwargs))
-        return self._answer
+                self._send(("call", fn, args, kwargs))
+                return self._answer
+            except (pickle.PicklingError, AttributeError, TypeError):   # it does not pickle: nothing was sent
+                pass
+            except OSError:    # the pipe is gone with the process
+                self._broken = True
+        try:
+            value = fn(*args, **kwargs)
+        except BaseException as exc:
+            def fail():
+                raise exc
+            return fail
+        return lambda: value
 
     def _answer(self) -> Any:
         kind, payload = self._get()
