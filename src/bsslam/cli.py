@@ -523,8 +523,10 @@ def _run_log(header, config, folder, every, viewer: Optional[str], place: dict, 
                 saved, mapper = load_checkpoint(run_dir)
                 start = saved.next_frame
             checkpointer = Checkpointer(run_dir, every, header, start_frame=start)
-            with progress_bar(f"{log.name}", steps, "scans") as update:
-                result = run_dataset(data, config, steps=steps, progress=update, total=steps,
+            expected = getattr(data, "expected_frames", None)
+            total = steps if expected is None else min(expected, steps or expected)
+            with progress_bar(f"{log.name}", total, "scans") as update:
+                result = run_dataset(data, config, steps=steps, progress=update, total=total,
                                      relocalize_progress=next_phase(update, f"{log.name}: relocalising"),
                                      viewer=open_viewer(viewer, run_dir) if viewer else None,
                                      mapper=mapper, start=start, checkpoint=checkpointer,

@@ -58,7 +58,10 @@ class SkipCounter:
 
 
 class Dataset(Protocol):
-    """A stream of frames; readers and the simulator implement it."""
+    """A stream of frames; readers and the simulator implement it.
+
+    A reader may also have ``expected_frames``: how many frames a pass will yield at most
+    (int, or None when it cannot tell), for a progress bar's total."""
 
     name: str
     ground_truth: Trajectory | None

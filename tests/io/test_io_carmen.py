@@ -412,3 +412,29 @@ def test_angle_increment_zero_and_negative_ranges(tmp_path):
     with pytest.raises(InputError, match="angle increment 0") as info:
         list(CarmenReader(path, strict=True))
     assert info.value.line == 2
+
+
+@pytest.mark.parametrize("newline, bom", [("\n", ""), ("\r\n", "\ufeff")])
+def test_expected_frames_counts_the_streams_lines_across_reads(tmp_path, newline, bom):
+    """The count the progress bar shows: every line of the chosen stream, the one whose
+    start straddles two of the counter's 1 MiB reads included; other streams and messages
+    are not counted; a pass yields as many frames."""
+    lines = []
+    for i in range(600):
+        lines += [odom([0.01 * i, 0, 0], i + 0.5), flaser([2.0 + 1e-3 * i] * 361, i + 1.0, [0.01 * i, 0, 0])]
+        if i % 7 == 0:
+            lines.append(rawlaser([1.0] * 3, i + 1.0))
+    lines.append(odom([6.0, 0, 0], 601.0))
+    text = (bom + newline.join(lines) + newline).encode()
+    # pad a message the reader ignores so that the read boundary falls inside "\nFLASER "
+    before = text.rindex(b"\nFLASER ", 0, 1 << 20)
+    pad = (1 << 20) - 3 - before - len(b"PAD " + newline.encode())
+    at = text.rindex(b"\n", 0, before) + 1
+    text = text[:at] + b"PAD " + b"x" * pad + newline.encode() + text[at:]
+    assert text[(1 << 20) - 3:(1 << 20) + 5] == b"\nFLASER "     # split after "\nFL"
+    path = tmp_path / "log.clf"
+    path.write_bytes(text)
+    reader, frames = _frames(path)
+    assert reader.laser_message == "FLASER"
+    assert reader.expected_frames == len(frames) == 600
+    assert CarmenReader(path, config=ReaderConfig(laser_message="RAWLASER1")).expected_frames == 86

@@ -27,6 +27,7 @@ def test_round_trip_with_interpolated_odometry(tmp_path, kind):
     assert scan.max_range == 30.0
     np.testing.assert_allclose(frames[0].laser_offset, [0.2, 0.05, 0.0], atol=1e-12)
     assert reader.skipped.counts == {"scan before the first odometry": 1, "scan after the last odometry": 1}
+    assert reader.expected_frames == 4      # the scan topic's messages: a bound on the frames
 
 
 @pytest.mark.parametrize("kind", ["ros1", "ros2-sqlite3"])
@@ -65,7 +66,7 @@ def test_topic_ambiguity_lists_candidates_and_naming_resolves_it(tmp_path):
     with pytest.raises(InputError, match="/odom, /odom_filtered"):
         RosbagReader(path, scan_topic="/scan")
     reader = RosbagReader(path, scan_topic="/rear_scan", odom_topic="/odom")
-    assert [f.stamp for f in reader] == pytest.approx([1.7])
+    assert [f.stamp for f in reader] == pytest.approx([1.7]) and reader.expected_frames == 1
     with pytest.raises(InputError, match="not a sensor_msgs"):
         RosbagReader(path, scan_topic="/odom")
 

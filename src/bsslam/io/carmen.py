@@ -134,6 +134,9 @@ class CarmenReader:
         name: the file's stem.
         laser_message: the laser stream read (None until one is seen if the start of
             the log has none).
+        expected_frames: the frames a pass will yield at most, for progress: the log's
+            lines of that stream (bad ones are skipped); None when the head of the log
+            holds no valid scan.
         no_return_code_m: the detected no-return code (m) or None.
         skipped: counts of what the last pass skipped, with the first locations.
 
@@ -153,6 +156,7 @@ class CarmenReader:
         self._check_content()
         valid, maxima = self._survey_head()
         self.laser_message = self.config.laser_message or self._choose_stream(valid)
+        self.expected_frames = None if self.laser_message is None else self._count_lines(self.laser_message)
         self.no_return_code_m = None
         if self.config.detect_no_return_code and self.laser_message in maxima:
             self.no_return_code_m = detect_no_return_code(maxima[self.laser_message], self.config)
@@ -194,6 +198,23 @@ class CarmenReader:
                         yield number, line
             except OSError as exc:
                 raise InputError(f"read error: {exc.strerror or exc}", self.path, number + 1) from None
+
+    def _count_lines(self, message: str) -> int:
+        """The lines of the log that start with ``message`` and a blank, counted in the raw
+        bytes a megabyte at a time (a few milliseconds a megabyte)."""
+        pattern = b"\n" + message.encode("ascii") + b" "
+        count, tail, first = 0, b"\n", True    # the first line: as if a newline came before it
+        try:
+            with open(self.path, "rb") as handle:
+                while chunk := handle.read(1 << 20):
+                    if first:
+                        chunk, first = chunk.removeprefix(b"\xef\xbb\xbf"), False   # a byte-order mark
+                    block = tail + chunk
+                    count += block.count(pattern)
+                    tail = block[-(len(pattern) - 1):]   # shorter than a match: none counted twice
+        except OSError as exc:
+            raise InputError(f"cannot read CARMEN log: {exc.strerror or exc}", self.path) from None
+        return count
 
     def _survey_head(self) -> tuple[Counter, dict[str, list[float]]]:
         """Valid scans per laser message type at the start of the log and, per type, the

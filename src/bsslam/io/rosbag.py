@@ -125,7 +125,10 @@ class RosbagReader:
             require_regular_file(self.path)   # a FIFO would block the bag reader
         with self._open() as reader:
             topics = {c.topic: c.msgtype for c in reader.connections}
+            counts = [(c.topic, c.msgcount) for c in reader.connections]
         self.scan_topic, self.odom_topic, self.odometry_from_tf = self._choose_topics(topics, scan_topic, odom_topic)
+        #: the frames a pass will yield at most, for progress: the scan topic's messages
+        self.expected_frames = sum(n for topic, n in counts if topic == self.scan_topic)
         self._static_topics = [t for t, ty in topics.items() if ty in TF_TYPES and t.strip("/") == "tf_static"]
 
     # -- opening ------------------------------------------------------------------------
