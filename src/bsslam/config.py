@@ -451,6 +451,10 @@ class FrontendConfig:
         degenerate_ratio: when the smallest eigenvalue of the translation information is
             below this fraction of the largest, the match is flagged degenerate (a
             corridor); its weak direction then comes from the odometry prior.
+        odometry_gate: a match whose increment lies beyond this probability region of
+            the odometry increment (χ²₃ with both covariances: the odometry model's and
+            the match's) is rejected → fall back, as the filter gates an observation
+            against its prediction; 1 turns the gate off.
     """
 
     # beams and points
@@ -501,6 +505,7 @@ class FrontendConfig:
     min_points: int = 30
     min_inlier_fraction: float = 0.25
     degenerate_ratio: float = 0.02
+    odometry_gate: float = 0.99
 
     def __post_init__(self) -> None:
         positive = ("max_range_m", "scan_voxel_m", "submap_voxel_m", "search_window_m", "search_window_rad",
@@ -542,6 +547,7 @@ class FrontendConfig:
             _check(getattr(self, name) <= 10.0, f"frontend.{name} must be ≤ 10")
         _check(self.covariance_inflation <= MAX_FACTOR, f"frontend.covariance_inflation must be ≤ {MAX_FACTOR:g}")
         _check(self.degenerate_ratio <= 1, "frontend.degenerate_ratio must be ≤ 1")
+        _check(0 < self.odometry_gate <= 1, "frontend.odometry_gate must be in (0, 1]")
         _check(self.max_range_m <= MAX_LASER_RANGE_M,
                f"frontend.max_range_m must be ≤ {MAX_LASER_RANGE_M:g} m (2D laser scanners reach ~80 m)")
         _check(self.search_window_m <= MAX_SEARCH_WINDOW_M,

@@ -146,3 +146,54 @@ def test_scalar_pose_helpers_equal_se2_bit_for_bit():
         pa, pb = tuple(a[i].tolist()), tuple(b[i].tolist())
         assert np.array_equal(np.array(_compose(pa, pb)), compose(a[i], b[i]))
         assert np.array_equal(np.array(_between(pa, pb)), between(a[i], b[i]))
+
+
+def test_the_odometry_gate_is_the_chi2_region_of_both_covariances():
+    """The decision is d (S_match + S_odo)⁻¹ dᵀ ≤ χ²₃ quantile (scipy as the oracle), with
+    the heading difference wrapped; a gate of 1 takes every match."""
+    from scipy.stats import chi2
+
+    rng = np.random.default_rng(5)
+    lo = LaserOdometry(FrontendConfig())
+    threshold = chi2.ppf(0.99, 3)
+    decided = []
+    for _ in range(300):
+        odo = rng.normal(0, [0.5, 0.5, 0.5])
+        A, B = rng.normal(size=(3, 3)), rng.normal(size=(3, 3))
+        S_match, S_odo = 0.01 * (A @ A.T + 0.1 * np.eye(3)), 0.01 * (B @ B.T + 0.1 * np.eye(3))
+        inc = odo + rng.normal(0, 0.4, 3)
+        d = inc - odo
+        expected = d @ np.linalg.solve(S_match + S_odo, d) <= threshold
+        assert lo._agrees_with_odometry(inc, S_match, odo, S_odo) == expected
+        turned = inc + np.array([0.0, 0.0, 2 * np.pi])       # the same heading
+        assert lo._agrees_with_odometry(turned, S_match, odo, S_odo) == expected
+        decided.append(expected)
+    assert 0 < sum(decided) < len(decided)        # both outcomes occurred
+    lo = LaserOdometry(FrontendConfig(odometry_gate=1.0))
+    assert lo._agrees_with_odometry(np.array([5.0, 5.0, 3.0]), 1e-6 * np.eye(3), np.zeros(3), 1e-6 * np.eye(3))
+
+
+def test_a_match_far_from_the_odometry_falls_back_to_it(monkeypatch):
+    """A confident match 40° away from an odometry that says the robot went straight (what
+    a corner seen again from a sparse log's 1 m step gives) is not taken: the step is the
+    odometry's, counted as a fallback for that reason. With the gate off it is taken."""
+    from bsslam.frontend.scan_matcher import ReferenceMap
+
+    data = simulate(get_world("mixed"), SimConfig(), seed=0, steps=6)
+    frames = list(data)
+    real_match = ReferenceMap.match
+
+    def turned(self, points, guess, prior_covariance=None):
+        result = real_match(self, points, guess, prior_covariance)
+        return replace(result, pose=result.pose + np.array([0.0, 0.0, math.radians(40.0)]))
+
+    monkeypatch.setattr(ReferenceMap, "match", turned)
+    for gate, taken in ((0.99, False), (1.0, True)):
+        lo, out = _run(frames[:2], FrontendConfig(odometry_gate=gate))
+        step = out[1]
+        assert step.fallback != taken
+        if taken:
+            assert abs(math.remainder(step.increment[2] - step.odometry_increment[2], 2 * math.pi)) > math.radians(39)
+        else:
+            np.testing.assert_array_equal(step.increment, step.odometry_increment)
+            assert lo.stats.reasons == {"inconsistent_with_odometry": 1}
