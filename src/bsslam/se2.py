@@ -4,6 +4,8 @@ The one implementation for every layer (readers, filter, metrics); numpy only.""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from bsslam.trajectory import wrap_angle
@@ -33,6 +35,15 @@ def inverse(a: np.ndarray) -> np.ndarray:
 def between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a⁻¹ ∘ b: pose b seen from pose a (the motion from a to b in a's frame)."""
     return compose(inverse(a), b)
+
+
+def squared_mahalanobis(a: np.ndarray, b: np.ndarray, covariance: np.ndarray) -> float:
+    """dᵀ Σ⁻¹ d of d = a − b, two (3,) poses or increments, its heading wrapped to
+    [−π, π]: how far apart they are for a difference with ``covariance`` (3, 3), to
+    compare with a χ²₃ quantile. Raises ``np.linalg.LinAlgError`` for a singular one."""
+    d = np.asarray(a, dtype=float) - b
+    d[2] = math.remainder(d[2], 2 * math.pi)
+    return float(d @ np.linalg.solve(covariance, d))
 
 
 def compose_jacobians(pose: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -41,6 +41,7 @@ from bsslam.dataset import Frame
 from bsslam.errors import InputError
 from bsslam.input_limits import InputLimits, offset_problem, pose_problem
 from bsslam.frontend.scan_matcher import MatchResult, ReferenceMap, estimate_normals, scan_points, voxel_thin
+from bsslam.se2 import squared_mahalanobis
 
 
 # Limits of the poses the front end accepts (the defaults of the readers').
@@ -222,10 +223,8 @@ class LaserOdometry:
         gate = self.config.odometry_gate
         if gate >= 1.0:
             return True
-        d = np.asarray(increment, dtype=float) - odometry
-        d[2] = math.remainder(d[2], 2 * math.pi)
         try:
-            distance = float(d @ np.linalg.solve(covariance + odometry_covariance, d))
+            distance = squared_mahalanobis(increment, odometry, covariance + odometry_covariance)
         except np.linalg.LinAlgError:
             return True
         return distance <= chi2_quantile(gate, 3)

@@ -43,7 +43,7 @@ from scipy.spatial import cKDTree
 from bsslam.config import SLAMConfig, SubmapConfig
 from bsslam.errors import MemoryBudgetError
 from bsslam.scan import LaserScan
-from bsslam.se2 import between, compose, compose_with_covariance
+from bsslam.se2 import between, compose, compose_with_covariance, squared_mahalanobis
 from bsslam.slam import MapSpline, SplineSLAM
 from bsslam.slam.features import SplineFeature
 from bsslam.slam.filter import StepReport
@@ -493,9 +493,7 @@ def matching_shape(splines: list[MapSpline], config: SubmapConfig) -> SubmapShap
 def _surprising(relative: np.ndarray, guess: np.ndarray, covariance: np.ndarray) -> bool:
     """``relative`` (3,) lies beyond the 99 % region of the graph's ``guess`` (3,) with
     ``covariance`` (3, 3)."""
-    offset = relative - guess
-    offset[2] = math.remainder(offset[2], 2 * math.pi)
-    return not float(offset @ np.linalg.solve(_proper(covariance), offset)) <= CONSISTENT_CHI2
+    return not squared_mahalanobis(relative, guess, _proper(covariance)) <= CONSISTENT_CHI2
 
 
 def _edge(record: LoopRecord) -> LoopEdge:

@@ -40,6 +40,7 @@ from bsslam.chi2 import chi2_quantile
 from bsslam.config import FrontendConfig, SubmapConfig
 from bsslam.errors import InputError
 from bsslam.frontend.scan_matcher import ReferenceMap, even_subset, transform_points, voxel_thin
+from bsslam.se2 import squared_mahalanobis
 from bsslam.spline import BSplineCurve
 
 #: Reasons a match is rejected (``LoopMatch.reason``); "ok" otherwise.
@@ -276,9 +277,7 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
     if np.all(np.isfinite(covariance)):
         # a rival the match's covariance admits (sliding along a corridor it leaves free)
         # is the same answer, not an ambiguity
-        d = alternative - pose
-        d[2] = math.remainder(d[2], 2 * math.pi)
-        if float(d @ np.linalg.solve(covariance, d)) <= _ADMITTED_CHI2:
+        if squared_mahalanobis(alternative, pose, covariance) <= _ADMITTED_CHI2:
             ambiguity = 0.0
 
     result = dict(inlier_fraction=fraction, overlap_m=overlap_m, ambiguity=ambiguity, information_ratio=info_ratio,
