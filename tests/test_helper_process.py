@@ -8,6 +8,7 @@ import operator
 import pickle
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -166,8 +167,31 @@ def test_a_call_runs_in_the_helper_and_raises_its_error_here():
         assert helper.call(operator.mul, 6, 7)() == 42                   # and the helper still takes calls
 
 
-def test_a_dataset_that_does_not_pickle_cannot_be_prefetched(room):
-    assert not can_prefetch(iter(room))
+class _Unpicklable:
+    """A dataset holding something that does not pickle (a lock, an open stream)."""
+
+    def __init__(self, data) -> None:
+        self.data, self.name, self.ground_truth = data, "unpicklable", data.ground_truth
+        self.lock = threading.Lock()
+
+    @property
+    def skipped(self):
+        return self.data.skipped
+
+    def __iter__(self):
+        return iter(self.data)
+
+
+def test_a_dataset_that_does_not_pickle_is_read_here(room, one_process):
+    """It cannot reach a second process: the run reads it here, with the same numbers, and
+    the helper passed in is left for its calls."""
+    data = _Unpicklable(room)
+    assert not can_prefetch(data) and not can_prefetch(iter(room))
+    with HandOverAt(0) as helper:
+        result = run_dataset(data, CONFIG, point_stride=3, prefetch=helper)
+        assert helper.asked == 0 and helper.call(operator.mul, 6, 7)() == 42
+    assert "frontend_in_helper" not in result.totals
+    assert_same_run(one_process, result)
 
 
 def test_the_pipeline_imports_no_plotting():

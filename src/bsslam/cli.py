@@ -497,7 +497,7 @@ def _run_log(header, config, folder, every, viewer: Optional[str], place: dict, 
     interruption): run, write the outputs, print the summary; exits 130 on a partial
     result. ``parallel``: the reader and the front end in a second process when there
     are two cores or more."""
-    from bsslam.helper_process import HelperProcess, can_prefetch
+    from bsslam.helper_process import HelperProcess
 
     # its interpreter starts while this one imports the rest; after the frames it draws the map
     helper = HelperProcess(preload=("bsslam.outputs", "bsslam.viz.map_figure")) if parallel and (os.cpu_count() or 1) > 1 else None
@@ -530,7 +530,7 @@ def _run_log(header, config, folder, every, viewer: Optional[str], place: dict, 
                                      relocalize_progress=next_phase(update, f"{log.name}: relocalising"),
                                      viewer=open_viewer(viewer, run_dir) if viewer else None,
                                      mapper=mapper, start=start, checkpoint=checkpointer,
-                                     prefetch=helper if helper is not None and can_prefetch(data) else False)
+                                     prefetch=helper or False)
             extra = checkpointer.figures() | ({"resumed_at_frame": start} if resume else {})
             summary = write_outputs(result, run_dir, config, reference=ref, title=f"BS-SLAM: {log.name}",
                                     show_control_points=opts["show_control_points"], extra=extra, helper=helper)

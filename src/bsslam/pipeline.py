@@ -14,7 +14,7 @@ from typing import Callable, Iterator
 from bsslam.config import SLAMConfig
 from bsslam.dataset import Dataset
 from bsslam.errors import MemoryBudgetError
-from bsslam.helper_process import HelperProcess, Prefetched
+from bsslam.helper_process import HelperProcess, Prefetched, can_prefetch
 from bsslam.mapper import Mapper, Progress, RunResult, Viewer, _no_progress, relocalize
 from bsslam.slam import SplineSLAM
 
@@ -58,7 +58,8 @@ def run_dataset(dataset: Dataset, config: SLAMConfig, *, steps: int | None = Non
             same result in less time on two cores. The frames are processed here until
             the helper is ready (its interpreter takes about a second to start), then it
             reads the dataset again from the start and takes over at the next frame. The
-            dataset must pickle and give the same frames on every pass (:func:`can_prefetch`);
+            dataset must give the same frames on every pass; one that does not pickle
+            (:func:`~bsslam.helper_process.can_prefetch`) is read here, without the helper;
             ``checkpoint`` is then called on the frames that bring the front end's state,
             asked for when its ``due(next_frame)`` (every frame without one) says so.
     """
@@ -67,6 +68,8 @@ def run_dataset(dataset: Dataset, config: SLAMConfig, *, steps: int | None = Non
     elif viewer is not None:
         mapper.viewer = viewer
     interrupted, reason = False, None
+    if prefetch is not False and not can_prefetch(dataset):   # it cannot reach a second process
+        prefetch = False
     helper = (HelperProcess() if prefetch is True else prefetch) or None
     handover = None
     try:
