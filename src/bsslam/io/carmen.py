@@ -51,6 +51,7 @@ are accepted.
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import math
 import os
@@ -156,7 +157,6 @@ class CarmenReader:
         self._check_content()
         valid, maxima = self._survey_head()
         self.laser_message = self.config.laser_message or self._choose_stream(valid)
-        self.expected_frames = None if self.laser_message is None else self._count_lines(self.laser_message)
         self.no_return_code_m = None
         if self.config.detect_no_return_code and self.laser_message in maxima:
             self.no_return_code_m = detect_no_return_code(maxima[self.laser_message], self.config)
@@ -198,6 +198,12 @@ class CarmenReader:
                         yield number, line
             except OSError as exc:
                 raise InputError(f"read error: {exc.strerror or exc}", self.path, number + 1) from None
+
+    @functools.cached_property
+    def expected_frames(self) -> int | None:
+        """The frames a pass will yield at most (see the class's attributes); the log is read
+        for it when it is first asked for, not when the reader opens it."""
+        return None if self.laser_message is None else self._count_lines(self.laser_message)
 
     def _count_lines(self, message: str) -> int:
         """The lines of the log that start with ``message`` and a blank, counted in the raw
