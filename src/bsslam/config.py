@@ -455,6 +455,11 @@ class FrontendConfig:
             the odometry increment (χ²₃ with both covariances: the odometry model's and
             the match's) is rejected → fall back, as the filter gates an observation
             against its prediction; 1 turns the gate off.
+        odometry_gate_steps: a match the gate rejects is still trusted when, composed
+            after the trusted matches of up to this many − 1 steps before it, it agrees
+            with the odometry composed over the same steps: an odometry skewed in time
+            books motion to the wrong one of two neighbouring increments. 1 gates each
+            increment alone.
     """
 
     # beams and points
@@ -506,6 +511,7 @@ class FrontendConfig:
     min_inlier_fraction: float = 0.25
     degenerate_ratio: float = 0.02
     odometry_gate: float = 0.99
+    odometry_gate_steps: int = 2
 
     def __post_init__(self) -> None:
         positive = ("max_range_m", "scan_voxel_m", "submap_voxel_m", "search_window_m", "search_window_rad",
@@ -548,6 +554,8 @@ class FrontendConfig:
         _check(self.covariance_inflation <= MAX_FACTOR, f"frontend.covariance_inflation must be ≤ {MAX_FACTOR:g}")
         _check(self.degenerate_ratio <= 1, "frontend.degenerate_ratio must be ≤ 1")
         _check(0 < self.odometry_gate <= 1, "frontend.odometry_gate must be in (0, 1]")
+        _check(isinstance(self.odometry_gate_steps, int) and 1 <= self.odometry_gate_steps <= 10,
+               "frontend.odometry_gate_steps must be an integer in [1, 10]")
         _check(self.max_range_m <= MAX_LASER_RANGE_M,
                f"frontend.max_range_m must be ≤ {MAX_LASER_RANGE_M:g} m (2D laser scanners reach ~80 m)")
         _check(self.search_window_m <= MAX_SEARCH_WINDOW_M,

@@ -197,3 +197,104 @@ def test_a_match_far_from_the_odometry_falls_back_to_it(monkeypatch):
         else:
             np.testing.assert_array_equal(step.increment, step.odometry_increment)
             assert lo.stats.reasons == {"inconsistent_with_odometry": 1}
+
+
+def _skewed(frames, k: int, turn_rad: float):
+    """``frames`` with frame k's odometry heading turned by ``turn_rad``: increment k then
+    claims that much more turn and increment k + 1 that much less — the motion booked to
+    the wrong one of two neighbouring increments, their composition unchanged (an odometry
+    skewed in time)."""
+    out = list(frames)
+    odo = out[k].odometry + np.array([0.0, 0.0, turn_rad])
+    out[k] = Frame(out[k].stamp, odo, out[k].scan, out[k].laser_offset)
+    return out
+
+
+def test_a_match_is_gated_over_two_steps_where_the_odometry_is_skewed_in_time():
+    """The rounded room's robot turns 14.3° a step from step 81 on. Frame 83's odometry
+    turned by 14.3° more books the turn of step 84 to step 83 (28.6° and 0°, their
+    composition right), as CSAIL's odometry does. Under an odometry model whose heading σ
+    grows with the turn, step 83's match is within its wide region; step 84's right match
+    is 14° from an odometry that claims no turn with a σ of about 1°. Gated alone it falls
+    back to that odometry; gated over two steps (the default) it is taken."""
+    data = simulate(get_world("rounded-room"), SimConfig(), seed=0, steps=86)
+    frames = _skewed(list(data), 83, math.radians(14.3))
+    truth = data.ground_truth.poses
+    model = dict(odom_sigma_rad=0.02, odom_sigma_rad_per_rad=0.4, odom_sigma_rad_per_m=0.0)
+    true_inc = between(truth[83], truth[84])
+    for steps in (1, 2):
+        lo, out = _run(frames[:85], FrontendConfig(odometry_gate_steps=steps, **model))
+        assert not out[83].fallback
+        error = abs(math.remainder(out[84].increment[2] - true_inc[2], 2 * math.pi))
+        if steps == 2:
+            assert not out[84].fallback and lo.stats.gated_over_steps >= 1
+            assert error < math.radians(1.0)
+        else:
+            assert out[84].fallback and lo.stats.gated_over_steps == 0
+            assert error > math.radians(10.0)
+
+
+def test_a_match_wrong_on_its_own_step_is_not_let_in_by_the_window(monkeypatch):
+    """A match 40° off at step 2 after a right match at step 1: composed over both steps it
+    is still 40° off the odometry, so the two-step gate rejects it as the one-step gate does."""
+    from bsslam.frontend.scan_matcher import ReferenceMap
+
+    data = simulate(get_world("mixed"), SimConfig(), seed=0, steps=4)
+    frames = list(data)
+    real_match = ReferenceMap.match
+    count = []
+
+    def turned_second(self, points, guess, prior_covariance=None):
+        count.append(1)
+        result = real_match(self, points, guess, prior_covariance)
+        if len(count) == 2:
+            result = replace(result, pose=result.pose + np.array([0.0, 0.0, math.radians(40.0)]))
+        return result
+
+    monkeypatch.setattr(ReferenceMap, "match", turned_second)
+    lo, out = _run(frames[:3], FrontendConfig(odometry_gate_steps=3))
+    assert not out[1].fallback and out[2].fallback
+    assert lo.stats.reasons == {"inconsistent_with_odometry": 1} and lo.stats.gated_over_steps == 0
+
+
+def test_the_gate_over_steps_is_the_chi2_test_of_the_composed_increments():
+    """_agrees_over_steps against an oracle written out here: the increments composed by
+    se2.compose, the matches' covariances and the last odometry increment's (only: the
+    window adds no freedom of the earlier odometry steps) propagated by finite-difference
+    Jacobians of that composition, the χ²₃ quantile from scipy."""
+    from scipy.stats import chi2
+
+    rng = np.random.default_rng(11)
+    lo = LaserOdometry(FrontendConfig(odometry_gate_steps=2))
+    threshold = chi2.ppf(0.99, 3)
+
+    def fd_cov(a, Pa, b, Pb):
+        J = np.zeros((3, 6))
+        x0 = np.r_[a, b]
+        for i in range(6):
+            h = np.zeros(6); h[i] = 1e-6
+            d = compose((x0 + h)[:3], (x0 + h)[3:]) - compose((x0 - h)[:3], (x0 - h)[3:])
+            d[2] = math.remainder(d[2], 2 * math.pi)
+            J[:, i] = d / 2e-6
+        P = np.zeros((6, 6)); P[:3, :3], P[3:, 3:] = Pa, Pb
+        return J @ P @ J.T
+
+    decided = []
+    for _ in range(200):
+        def cov():
+            A = rng.normal(size=(3, 3))
+            return 0.003 * (A @ A.T + 0.1 * np.eye(3))
+        prev_match, prev_odo = rng.normal(0, [0.5, 0.2, 0.4]), rng.normal(0, [0.5, 0.2, 0.4])
+        match, odo = rng.normal(0, [0.5, 0.2, 0.4]), rng.normal(0, [0.5, 0.2, 0.4])
+        Pm0, Po0, Pm, Po = cov(), cov(), cov(), cov()
+        lo._recent.clear()
+        lo._recent.append((prev_match, Pm0, prev_odo, Po0))
+        d = compose(prev_match, match) - compose(prev_odo, odo)
+        d[2] = math.remainder(d[2], 2 * math.pi)
+        S = fd_cov(prev_match, Pm0, match, Pm) + fd_cov(prev_odo, np.zeros((3, 3)), odo, Po)
+        expected = d @ np.linalg.solve(S, d) <= threshold
+        assert lo._agrees_over_steps(match, Pm, odo, Po) == expected
+        decided.append(expected)
+    assert 0 < sum(decided) < len(decided)
+    lo._recent.clear()
+    assert not lo._agrees_over_steps(np.zeros(3), np.eye(3), np.zeros(3), np.eye(3))   # no window: no second chance

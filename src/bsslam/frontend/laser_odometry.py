@@ -9,7 +9,8 @@ at the first frame's odometry pose). For every frame after the first:
 3. the increment is ``between(previous pose, matched pose)`` and its covariance the match
    covariance turned into the previous robot frame; when the match is not trusted — the
    matcher failed, or its increment disagrees with the odometry's beyond the
-   ``odometry_gate`` probability region of both covariances — the raw increment is
+   ``odometry_gate`` probability region of both covariances, alone and summed with the
+   matched increments just before it (``odometry_gate_steps``) — the raw increment is
    returned with the odometry-model covariance (a *fallback*, counted),
 4. the scan becomes a keyframe when the robot is far enough from the last one; the
    submap is the union of the last ``submap_keyframes`` keyframes, thinned. Keyframes
@@ -41,7 +42,7 @@ from bsslam.dataset import Frame
 from bsslam.errors import InputError
 from bsslam.input_limits import InputLimits, offset_problem, pose_problem
 from bsslam.frontend.scan_matcher import MatchResult, ReferenceMap, estimate_normals, scan_points, voxel_thin
-from bsslam.se2 import squared_mahalanobis
+from bsslam.se2 import compose_with_covariance, squared_mahalanobis
 
 
 # Limits of the poses the front end accepts (the defaults of the readers').
@@ -110,6 +111,9 @@ class FrontendStats:
             or ``inconsistent_with_odometry``: see :attr:`FrontendConfig.odometry_gate`).
         degenerate: trusted matches flagged degenerate.
         keyframes: keyframes made.
+        gated_over_steps: trusted matches that disagreed with their own odometry
+            increment but agreed with the odometry summed over the last few steps
+            (``odometry_gate_steps``: an odometry skewed in time).
     """
 
     frames: int = 0
@@ -118,6 +122,7 @@ class FrontendStats:
     reasons: dict[str, int] = field(default_factory=dict)
     degenerate: int = 0
     keyframes: int = 0
+    gated_over_steps: int = 0
 
 
 @dataclass(frozen=True)
@@ -145,6 +150,10 @@ class LaserOdometry:
         self._keyframes: deque[_Keyframe] = deque(maxlen=config.submap_keyframes)
         self._reference: ReferenceMap | None = None
         self._since_rebuild = 0
+        # the last trusted matches, newest last, each (increment, covariance, odometry
+        # increment, odometry covariance) (3,), (3, 3), (3,), (3, 3); emptied by a fallback
+        self._recent: deque[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = deque(
+            maxlen=max(config.odometry_gate_steps - 1, 0))
 
     def odometry_covariance(self, increment: np.ndarray) -> np.ndarray:
         """(3, 3) diagonal covariance of a raw odometry increment under the config's model."""
@@ -195,13 +204,19 @@ class LaserOdometry:
             covariance = rot.T @ match.covariance @ rot
             covariance = 0.5 * (covariance + covariance.T)
             if not self._agrees_with_odometry(increment, covariance, odo_inc, odo_cov):
-                match = dataclasses.replace(match, ok=False, reason="inconsistent_with_odometry")
+                if self._agrees_over_steps(increment, covariance, odo_inc, odo_cov):
+                    self.stats.gated_over_steps += 1
+                else:
+                    match = dataclasses.replace(match, ok=False, reason="inconsistent_with_odometry")
         if match is not None and match.ok:
             self.stats.matched += 1
             self.stats.degenerate += int(match.degenerate)
             fallback = False
+            if self._recent.maxlen:
+                self._recent.append((increment, covariance, odo_inc, odo_cov))
         else:
             increment, covariance, fallback = odo_inc, odo_cov, True
+            self._recent.clear()
             reason = "too_few_reference_points" if match is None else match.reason
             self.stats.fallbacks += 1
             self.stats.reasons[reason] = self.stats.reasons.get(reason, 0) + 1
@@ -228,6 +243,33 @@ class LaserOdometry:
         except np.linalg.LinAlgError:
             return True
         return distance <= chi2_quantile(gate, 3)
+
+    def _agrees_over_steps(self, increment: np.ndarray, covariance: np.ndarray, odometry: np.ndarray,
+                           odometry_covariance: np.ndarray) -> bool:
+        """Whether the match's ``increment`` composed after the trusted matches just before
+        it (up to ``odometry_gate_steps`` − 1 of them, none past a fallback) agrees with the
+        odometry's increments composed over the same steps, over any of those windows:
+        the composed difference within the ``odometry_gate`` region of the matches'
+        composed covariance and *this* step's odometry covariance (the window moves the
+        odometry's motion between its steps but adds none of their freedom).
+
+        A log's odometry can be skewed in time against its scans: motion is then booked to
+        the wrong one of two neighbouring increments, each off by tens of degrees in
+        opposite directions while their sum is right (CSAIL's first scans: −23.7° and
+        −29.5° where the robot turned −12.1° and −43.1°). A noise model of independent
+        increments calls the right match of the second step an outlier; over the two
+        steps it is not. A match wrong on its own step stays as wrong over the window and
+        is judged by its own step's σ, so the earlier steps' wide regions (a sharp turn
+        just before) do not let it in."""
+        matched, matched_cov = increment, covariance
+        odo, odo_cov = odometry, odometry_covariance
+        zero = np.zeros((3, 3))
+        for inc, cov, o_inc, _ in reversed(self._recent):
+            matched, matched_cov = compose_with_covariance(inc, cov, matched, matched_cov)
+            odo, odo_cov = compose_with_covariance(o_inc, zero, odo, odo_cov)
+            if self._agrees_with_odometry(matched, matched_cov, odo, odo_cov):
+                return True
+        return False
 
     # -- submap ----------------------------------------------------------------------------
 
