@@ -215,12 +215,12 @@ def test_a_match_is_gated_over_two_steps_where_the_odometry_is_skewed_in_time():
     turned by 14.3° more books the turn of step 84 to step 83 (28.6° and 0°, their
     composition right), as CSAIL's odometry does. Under an odometry model whose heading σ
     grows with the turn, step 83's match is within its wide region; step 84's right match
-    is 14° from an odometry that claims no turn with a σ of about 1°. Gated alone it falls
+    is 14° from an odometry that claims no turn with a σ of about 2°. Gated alone it falls
     back to that odometry; gated over two steps (the default) it is taken."""
     data = simulate(get_world("rounded-room"), SimConfig(), seed=0, steps=86)
     frames = _skewed(list(data), 83, math.radians(14.3))
     truth = data.ground_truth.poses
-    model = dict(odom_sigma_rad=0.02, odom_sigma_rad_per_rad=0.4, odom_sigma_rad_per_m=0.0)
+    model = dict(odom_sigma_rad=0.04, odom_sigma_rad_per_rad=0.4, odom_sigma_rad_per_m=0.0)
     true_inc = between(truth[83], truth[84])
     for steps in (1, 2):
         lo, out = _run(frames[:85], FrontendConfig(odometry_gate_steps=steps, **model))
@@ -261,12 +261,13 @@ def test_the_gate_over_steps_is_the_chi2_test_of_the_composed_increments():
     """_agrees_over_steps against an oracle written out here: the increments composed by
     se2.compose, the matches' covariances and the last odometry increment's (only: the
     window adds no freedom of the earlier odometry steps) propagated by finite-difference
-    Jacobians of that composition, the χ²₃ quantile from scipy."""
+    Jacobians of that composition, the χ²₃ median from scipy (the window has to explain
+    the disagreement, not merely pass the gate's 99 % region)."""
     from scipy.stats import chi2
 
     rng = np.random.default_rng(11)
     lo = LaserOdometry(FrontendConfig(odometry_gate_steps=2))
-    threshold = chi2.ppf(0.99, 3)
+    threshold = chi2.ppf(0.5, 3)
 
     def fd_cov(a, Pa, b, Pb):
         J = np.zeros((3, 6))
