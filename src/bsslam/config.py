@@ -862,13 +862,16 @@ class SLAMConfig:
         max_memory_mb: budget for the live estimator arrays (MB): the covariance and the
             frozen submaps. A run that would exceed it stops with a clear message and
             writes its results so far.
-        estimator: "ekf" (the paper's) or "oc-ekf": the observability-constrained EKF
-            (Huang, Mourikis, Roumeliotis), whose linearisations keep global translation and
-            rotation unobservable, so the map does not make the filter believe it knows its
-            heading; "invariant": the EKF in right-invariant error coordinates
-            (Barrau and Bonnabel), where those directions are the same at every estimate,
-            so no update can inform them, exactly (full SLAM only; localisation in a given
-            map uses the EKF).
+        estimator: "invariant" (default): the EKF in right-invariant error coordinates
+            (Barrau and Bonnabel), where global translation and rotation are the same
+            directions at every estimate, so no update can inform them, exactly (full SLAM
+            only; localisation in a given map uses the EKF); "ekf": the paper's filter
+            (its experiments use it); "oc-ekf": the observability-constrained EKF (Huang,
+            Mourikis, Roumeliotis), whose linearisations keep those directions
+            unobservable by first estimates. On the shared logs the invariant EKF keeps the
+            heading's σ where the paper's EKF shrinks it seeing only new walls (CSAIL's
+            first scans: 10.5° against 1.3° with the heading 13° off), which took the
+            campus's online poses outside their 95 % region from 20 % to 6 % (README).
     """
 
     spline: SplineConfig = field(default_factory=SplineConfig)
@@ -886,7 +889,7 @@ class SLAMConfig:
     mode: Mode = "slam"
     initial_pose_sigma: tuple[float, float, float] = (0.0, 0.0, 0.0)
     relocalize: bool = True
-    estimator: EstimatorName = "ekf"
+    estimator: EstimatorName = "invariant"
 
     def __post_init__(self) -> None:
         _check(self.mode in ("slam", "localization"), f"mode must be 'slam' or 'localization', got {self.mode!r}")

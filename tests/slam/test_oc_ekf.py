@@ -132,7 +132,8 @@ def test_localization_uses_the_ekf():
     slam = SplineSLAM(SLAMConfig(estimator="oc-ekf", mode="localization"))
     assert type(slam.state) is CompressedEKF
     assert isinstance(SplineSLAM(SLAMConfig(estimator="oc-ekf")).state, OCEKF)
-    assert type(SplineSLAM(SLAMConfig()).state) is CompressedEKF   # the paper's filter by default
+    assert type(SplineSLAM(SLAMConfig(estimator="ekf")).state) is CompressedEKF   # the paper's filter
+    assert type(SplineSLAM(SLAMConfig(mode="localization")).state) is CompressedEKF   # whatever the default
 
 
 def heading_nees(estimator: str, seed: int, sigma0: float, updates: int) -> np.ndarray:

@@ -190,7 +190,11 @@ def test_a_surprising_match_waits_for_a_neighbour_that_agrees(double_loop):
     _, result, _ = double_loop
     slam = copy.deepcopy(result.submaps)
     reach = 3
-    slam.config = slam.config.replace(submaps=dataclasses.replace(slam.config.submaps, loop_support_submaps=reach))
+    # cycles vote when their 99 % region is within 1 m and 20°: the invariant EKF's seams
+    # keep the heading σ the paper's EKF shrank, and the cycles here reach 0.7–1.0 m at
+    # 99 %, so at the default 0.5 m none would be precise enough to vote
+    slam.config = slam.config.replace(submaps=dataclasses.replace(
+        slam.config.submaps, loop_support_submaps=reach, loop_distinct_m=1.0, loop_distinct_rad=np.radians(20.0)))
     loop = slam.loops[-1]
     last = slam.submap_index
     before = slam.graph.loop_count
