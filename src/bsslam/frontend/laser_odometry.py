@@ -156,9 +156,10 @@ class LaserOdometry:
         self._reference: ReferenceMap | None = None
         self._since_rebuild = 0
         # the last trusted matches, newest last, each (increment, covariance, odometry
-        # increment, odometry covariance) (3,), (3, 3), (3,), (3, 3); emptied by a fallback
-        self._recent: deque[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = deque(
-            maxlen=max(config.odometry_gate_steps - 1, 0))
+        # increment) (3,), (3, 3), (3,); emptied by a fallback. The earlier steps' odometry
+        # covariance is not kept: the window adds none of their freedom
+        self._recent: deque[tuple[np.ndarray, np.ndarray, np.ndarray]] = deque(
+            maxlen=config.odometry_gate_steps - 1)
 
     def odometry_covariance(self, increment: np.ndarray) -> np.ndarray:
         """(3, 3) diagonal covariance of a raw odometry increment under the config's model."""
@@ -217,8 +218,7 @@ class LaserOdometry:
             self.stats.matched += 1
             self.stats.degenerate += int(match.degenerate)
             fallback = False
-            if self._recent.maxlen:
-                self._recent.append((increment, covariance, odo_inc, odo_cov))
+            self._recent.append((increment, covariance, odo_inc))   # maxlen 0 keeps none
         else:
             increment, covariance, fallback = odo_inc, odo_cov, True
             self._recent.clear()
@@ -277,7 +277,7 @@ class LaserOdometry:
         matched, matched_cov = increment, covariance
         odo, odo_cov = odometry, odometry_covariance
         zero = np.zeros((3, 3))
-        for inc, cov, o_inc, _ in reversed(self._recent):
+        for inc, cov, o_inc in reversed(self._recent):
             matched, matched_cov = compose_with_covariance(inc, cov, matched, matched_cov)
             odo, odo_cov = compose_with_covariance(o_inc, zero, odo, odo_cov)
             if self._agrees_with_odometry(matched, matched_cov, odo, odo_cov, _WINDOW_PROBABILITY):
