@@ -118,3 +118,32 @@ def test_support_counts_neighbours_that_agree_against_those_that_do_not():
     distinct = (0.5, np.radians(10.0))
     assert count(candidate, [loop(2, 10, (1.0, 0.0))], edges, distinct) == (0, 1)
     assert count(candidate, [loop(2, 10, (1.0, 0.0))], lost, distinct) == (0, 0)
+
+
+def test_a_cycle_votes_when_it_can_tell_the_match_from_its_rival():
+    """With the match's runner-up known, a cycle votes when putting the rival in the
+    match's place would leave the cycle's 99 % region: a coarse cycle (through a submap
+    whose filter lost itself) can still tell a match from a copy 8 m away, not from one
+    0.6 m away (the matcher's rivals are at least ``loop_distinct_m`` apart); without a
+    rival the fixed distinct thresholds decide, as before."""
+    bases = _bases(16)
+    edges = [(between(bases[m], bases[m + 1]), np.diag(EDGE_SIGMA ** 2)) for m in range(len(bases) - 1)]
+    lost = list(edges)
+    lost[1] = (edges[1][0], np.diag([1.0, 1.0, 0.09]))
+    distinct = (0.5, np.radians(10.0))
+
+    def loop(i, k, shift=(0.0, 0.0), rival=None):
+        relative = between(bases[i], bases[k] + np.r_[shift, 0.0])
+        return LoopEdge(i, k, relative, np.diag(LOOP_SIGMA ** 2),
+                        None if rival is None else compose(relative, np.array(rival)))
+
+    far, near = (8.0, 3.0, np.pi / 2), (0.6, 0.0, 0.0)
+    assert votes(loop(1, 9), [loop(2, 10)], lost, 3, *distinct) == (0, 0)            # no rival: too coarse
+    assert votes(loop(1, 9, rival=far), [loop(2, 10)], lost, 3, *distinct) == (1, 0)
+    assert votes(loop(1, 9, rival=near), [loop(2, 10)], lost, 3, *distinct) == (0, 0)
+    # the copy 8 m away as the candidate, the truth its rival: the neighbour disagrees
+    copy = loop(1, 9, shift=(8.0, 0.0), rival=None)
+    copy = LoopEdge(copy.reference, copy.query, copy.relative, copy.covariance, loop(1, 9).relative)
+    assert votes(copy, [loop(2, 10)], lost, 3, *distinct) == (0, 1)
+    # precise edges tell either rival apart
+    assert votes(loop(1, 9, rival=far), [loop(2, 10)], edges, 3, *distinct) == (1, 0)

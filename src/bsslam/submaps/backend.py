@@ -95,6 +95,8 @@ class LoopRecord:
         inlier_fraction, overlap_m: the match's verification figures.
         loop_id: the factor's id in the graph (its weight in the solution: ``PoseGraph.loop_weights``);
             −1 while the match waits for support, not yet in the graph.
+        rival: (3,) the runner-up alignment the match's covariance does not admit, or None
+            (see :class:`~bsslam.submaps.loop_support.LoopEdge`).
     """
 
     reference: int
@@ -104,6 +106,7 @@ class LoopRecord:
     inlier_fraction: float
     overlap_m: float
     loop_id: int = -1
+    rival: np.ndarray | None = None
 
 
 @dataclass
@@ -306,8 +309,9 @@ class SubmapSLAM:
             # a match beyond the graph's 99 % region claims drift the graph does not expect
             # (read only by the vote between matches)
             surprising = cfg.loop_support_submaps > 0 and _surprising(match.relative, guess, cov)
+            rival = match.alternative.copy() if match.ambiguity > 0 else None
             found.append((LoopRecord(int(j), k, match.relative, match.covariance, match.inlier_fraction,
-                                     match.overlap_m), window_m, surprising))
+                                     match.overlap_m, rival=rival), window_m, surprising))
         return self._admit(k, found)
 
     def _admit(self, k: int, found: list[tuple[LoopRecord, float, bool]]) -> bool:
@@ -497,7 +501,7 @@ def _surprising(relative: np.ndarray, guess: np.ndarray, covariance: np.ndarray)
 
 
 def _edge(record: LoopRecord) -> LoopEdge:
-    return LoopEdge(record.reference, record.query, record.relative, record.covariance)
+    return LoopEdge(record.reference, record.query, record.relative, record.covariance, record.rival)
 
 
 def _proper(cov: np.ndarray, max_sigma: float = 100.0) -> np.ndarray:

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bsslam.chi2 import chi2_quantile
-from bsslam.se2 import compose_with_covariance, inverse_with_covariance
+from bsslam.se2 import compose, compose_with_covariance, inverse, inverse_with_covariance
 
 #: χ²(3) at 99 %: a cycle within this squared Mahalanobis distance of the identity is
 #: consistent.
@@ -44,12 +44,16 @@ class LoopEdge:
         reference, query: the submaps (graph nodes).
         relative: (3,) the query's base in the reference's frame (x m, y m, φ rad).
         covariance: (3, 3) its covariance (m², m·rad, rad²).
+        rival: (3,) the best alignment the match's search found distinct from
+            ``relative`` that its covariance does not admit (the runner-up: a copy of the
+            structure), or None when the search window held none.
     """
 
     reference: int
     query: int
     relative: np.ndarray
     covariance: np.ndarray
+    rival: np.ndarray | None = None
 
 
 def chain(edges: Sequence[tuple[np.ndarray, np.ndarray]], i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
@@ -100,17 +104,26 @@ def votes(candidate: LoopEdge, others: Sequence[LoopEdge], edges: Sequence[tuple
     """How many of the neighbouring matches in ``others`` (:func:`neighbours`) close a
     consistent cycle with ``candidate`` (χ²(3) at 99 %) and how many an inconsistent one.
 
-    Only informative cycles vote: those whose 99 % region is within ``distinct_m`` (m) in
-    position and ``distinct_rad`` (rad) in heading — a cycle that cannot tell two distinct
-    alignments apart (one through a submap whose filter lost itself, with a metre of
-    uncertainty) would support any of them."""
+    Only informative cycles vote: those that can tell the candidate from the alignment it
+    would be confused with. With a ``rival`` that is that alignment: the cycle votes when
+    putting the rival in the candidate's place would move the cycle beyond its 99 %
+    region. Without one, any alignment distinct from it by ``distinct_m`` (m) in position
+    or ``distinct_rad`` (rad) in heading: the cycle votes when its 99 % region is within
+    those. A cycle that cannot tell them apart (one through a submap whose filter lost
+    itself, with a metre of uncertainty) would support either."""
     consistent = inconsistent = 0
     scale = float(np.sqrt(CONSISTENT_CHI2))
+    swap = None if candidate.rival is None else compose(candidate.rival, inverse(candidate.relative))
     for other in others:
         if not neighbours(candidate, other, reach):
             continue
         pose, cov = cycle(candidate, other, edges)
-        if (scale * np.sqrt(np.linalg.eigvalsh(cov[:2, :2])[-1]) > distinct_m
+        if swap is not None:
+            # the cycle starts with the candidate (reference frame): the rival in its place
+            # moves the cycle by ``swap`` to first order
+            if not _squared_distance(swap, cov) > CONSISTENT_CHI2:
+                continue
+        elif (scale * np.sqrt(np.linalg.eigvalsh(cov[:2, :2])[-1]) > distinct_m
                 or scale * np.sqrt(cov[2, 2]) > distinct_rad):
             continue
         if _squared_distance(pose, cov) <= CONSISTENT_CHI2:
