@@ -21,7 +21,7 @@ from bsslam.sim import SimConfig, get_world, simulate
 from bsslam.slam import MapSpline
 from bsslam.slam.state import JointState
 from bsslam.spline import BSplineCurve
-from bsslam.submaps.backend import (SURFACE_SPACING_M, SubmapSLAM, _proper, mark_surfaces, matching_shape,
+from bsslam.submaps.backend import (SURFACE_SPACING_M, SubmapSLAM, _edge, _proper, mark_surfaces, matching_shape,
                                     seam_covariance, transform_spline)
 from bsslam.submaps.pose_graph import _check_covariance
 from bsslam.submaps.loop_support import chain
@@ -217,6 +217,20 @@ def test_a_surprising_match_waits_for_a_neighbour_that_agrees(double_loop):
 
 def _edges(slam):
     return [(f.end_pose, f.end_covariance) for f in slam.frozen]
+
+
+def test_loop_closures_keep_their_rivals_for_the_vote(double_loop):
+    """Each loop closure carries its match's runner-up alignment (what the vote asks a
+    cycle to tell it from): in the rounded room, a copy slid about half a metre along a
+    wall; the vote's edges carry it too."""
+    _, result, _ = double_loop
+    loops = result.submaps.loops
+    rivals = [loop for loop in loops if loop.rival is not None]
+    assert rivals, "no loop closure kept a rival"
+    for loop in rivals:
+        assert loop.rival.shape == (3,) and np.all(np.isfinite(loop.rival))
+        assert not np.allclose(loop.rival, loop.relative)
+        assert _edge(loop).rival is loop.rival
 
 
 def test_a_spline_position_sigma_is_the_median_control_point_sigma():
