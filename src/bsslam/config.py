@@ -724,7 +724,7 @@ class SubmapConfig:
             correlative search; ``loop_refine_points`` into the refinement.
         loop_refine_points:
         loop_support_submaps: 0 admits every verified match into the graph at once.
-            N > 0 (default 3): verified matches vote on each other — two whose submaps are
+            N > 0 (default 5): verified matches vote on each other — two whose submaps are
             each within N submaps of the other's agree when the cycle they close through
             the submaps' odometry-like constraints is consistent (χ²(3) at 99 %), disagree
             when it is not; a cycle votes only when it can tell the match from the
@@ -735,12 +735,15 @@ class SubmapConfig:
             surprising one only once more agree than disagree, and is dropped
             (``unsupported``) when no later match can vote on it any more. Ten perturbed
             runs and float32 of every shared log (2026-12-04): the campus's median ATE
-            0.429 m against 0.565 m with 0, its worst run 1.43 m against 6.03 m (a facade
-            of submap 4 matched 9 m off in submap 55, which the graph took and bent the
-            next matches to), every other log the same to the last digit. Before cycles
-            were judged against the rival (only against the fixed thresholds) 3 gave the
-            campus 0.454 m and a worst run of 2.34 m (README, Limits;
-            :mod:`bsslam.submaps.loop_support`).
+            0.414 m against 0.565 m with 0, its ten perturbed runs within 0.332–0.490 m
+            against 0.398–6.03 m (a facade of submap 4 matched 9 m off in submap 55, which
+            the graph took and bent the next matches to); every other log the same to the
+            last digit. N = 3 gives the campus 0.429 m (0.385–1.43): in its seed 4 the
+            copies 5.5 m off that followed the wrong match (0 → 60, 6 → 73–75, 3 → 193)
+            entered, and with 5 they stay out (the campus's submaps are about 10 m long,
+            the buildings' 25 m). Before cycles were judged against the
+            rival (only against the fixed thresholds) 3 gave the campus 0.454 m and a worst
+            run of 2.34 m (README, Limits; :mod:`bsslam.submaps.loop_support`).
         loop_max_wall_sigma_m: with a value > 0, a frozen submap's walls whose place in it
             is known to worse than this (m; the median σ of their control points) take no
             part in loop closure (they stay in the map); 0 (default) matches every wall.
@@ -800,7 +803,7 @@ class SubmapConfig:
     loop_distinct_rad: float = math.radians(10.0)
     loop_search_points: int = 400
     loop_refine_points: int = 1500
-    loop_support_submaps: int = 3
+    loop_support_submaps: int = 5
     loop_max_wall_sigma_m: float = 0.0
     loop_wall_covariance: bool = True
     loop_outliers: LoopOutliers = "gnc"
