@@ -199,8 +199,9 @@ def test_a_surprising_match_waits_for_a_neighbour_that_agrees(double_loop):
     last = slam.submap_index
     before = slam.graph.loop_count
 
-    # a copy of the last loop closure's walls 2 m away, alone
-    wrong = dataclasses.replace(loop, reference=loop.reference - 1, loop_id=-1,
+    # a copy of the last loop closure's walls 2 m away, alone (made up here, with no
+    # search behind it: no rival, so the distinct thresholds above decide which cycles vote)
+    wrong = dataclasses.replace(loop, reference=loop.reference - 1, loop_id=-1, rival=None,
                                 relative=compose(chain(_edges(slam), loop.reference - 1, loop.reference)[0],
                                                  compose(loop.relative, np.array([2.0, 0.0, 0.0]))))
     assert not slam._admit(last, [(wrong, 5.0, True)])

@@ -4,6 +4,8 @@ leaves it, and the support rule counts only neighbours."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.stats import binom, chi2
@@ -142,8 +144,7 @@ def test_a_cycle_votes_when_it_can_tell_the_match_from_its_rival():
     assert votes(loop(1, 9, rival=far), [loop(2, 10)], lost, 3, *distinct) == (1, 0)
     assert votes(loop(1, 9, rival=near), [loop(2, 10)], lost, 3, *distinct) == (0, 0)
     # the copy 8 m away as the candidate, the truth its rival: the neighbour disagrees
-    copy = loop(1, 9, shift=(8.0, 0.0), rival=None)
-    copy = LoopEdge(copy.reference, copy.query, copy.relative, copy.covariance, loop(1, 9).relative)
+    copy = dataclasses.replace(loop(1, 9, shift=(8.0, 0.0)), rival=loop(1, 9).relative)
     assert votes(copy, [loop(2, 10)], lost, 3, *distinct) == (0, 1)
-    # precise edges tell either rival apart
+    # precise edges tell the far rival apart too
     assert votes(loop(1, 9, rival=far), [loop(2, 10)], edges, 3, *distinct) == (1, 0)
