@@ -123,9 +123,7 @@ def report(log: Path, seed: int | None, reference_sigma: tuple[float, float]) ->
                  if x is not None]
 
     # inside the run: the graph's variance factor …
-    graph = submaps.graph
-    solved = graph._solved_graph()
-    chi2 = 2.0 * solved.error(graph._values)
+    chi2 = submaps.graph.solution_chi2()
     redundancy = 3 * len(kept)
     # … and each loop closure's innovation against the chain of seams between its submaps
     innovations = []

@@ -155,6 +155,26 @@ def test_optimum_matches_dense_least_squares(seed, kernel):
     assert np.abs(chain[:, :2] - expected.reshape(-1, 3)[:, :2]).max() > 1e-3
 
 
+def test_solution_chi2_is_the_weighted_disagreement_of_a_loop_with_the_odometry():
+    # One odometry edge and one loop closure over it that disagree by δ: the optimum splits
+    # δ by the covariances, and the χ² left is δᵀ (Σ_odometry + Σ_loop)⁻¹ δ (linear:
+    # headings zero, δ a translation; node 0 held by a prior of σ 1 µm).
+    odo_cov = np.diag(np.square([0.05, 0.02, 0.01]))
+    loop_cov = np.diag(np.square([0.03, 0.04, 0.02]))
+    delta = np.array([0.08, -0.05, 0.0])
+    graph = PoseGraph(np.zeros(3), np.eye(3) * 1e-12, loop_outliers=None)
+    graph.add_node(np.array([2.0, 0.0, 0.0]), odo_cov)
+    graph.optimize()
+    assert graph.solution_chi2() == pytest.approx(0.0, abs=1e-12)
+    graph.add_loop(0, 1, np.array([2.0, 0.0, 0.0]) + delta, loop_cov)
+    graph.optimize()
+    expected = delta @ np.linalg.solve(odo_cov + loop_cov, delta)
+    # (to iSAM2's convergence: it stops relinearising at its threshold)
+    assert graph.solution_chi2() == pytest.approx(expected, rel=1e-4)
+    # neither covariance alone would give it
+    assert expected / (delta @ np.linalg.solve(loop_cov, delta)) < 0.5
+
+
 # --- 2. a false loop closure ---------------------------------------------------------------
 
 

@@ -477,6 +477,14 @@ class PoseGraph:
         H = np.hstack([-r.inverse().AdjointMap(), np.eye(3)])
         return rel, _from_tangent(H @ S @ H.T, rel[2])
 
+    def solution_chi2(self) -> float:
+        """χ² of the solution: the sum of the squared whitened residuals (2 × GTSAM's
+        error) of the factors it minimises — the prior, the odometry factors and the loop
+        factors (robust ones; with ``gnc`` the inliers) — at the current estimate. Over the
+        graph's redundancy (3 per loop closure it keeps) it is the a-posteriori variance
+        factor: about 1 when the constraints' covariances are right."""
+        return 2.0 * float(self._solved_graph().error(self._values))
+
     def loop_errors(self) -> np.ndarray:
         """Whitened residual norm (loops,) of each loop factor at the current estimate,
         under its Gaussian model (σ units), inliers and outliers alike."""
