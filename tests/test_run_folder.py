@@ -326,3 +326,39 @@ print(twice(1.5))
     done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert done.stdout.split("\n")[:2] == ["interrupted SIGTERM [True]", "3.0"], done.stdout
+
+
+def test_a_signal_while_numba_compiles_is_raised_once_the_kernel_is_whole():
+    """LLVM calls back into Python while numba generates a kernel's code; a
+    KeyboardInterrupt raised there leaves LLVM's object cache inconsistent and the process
+    aborts (SIGABRT) at the next code generation — a cold-cache run killed mid-compile did.
+    The command line holds signals while numba's compiler lock is held (the lock covers
+    compiling and loading from the cache) and raises them when it is released; the kernel
+    compiled meanwhile works. (In a subprocess: the signal must not reach pytest.)"""
+    script = """
+import os, signal
+from numba import njit
+from numba.core.compiler_lock import global_compiler_lock
+from bsslam.cli import signals_interrupt
+
+@njit
+def twice(x):
+    return 2.0 * x
+
+reached = []
+try:
+    with signals_interrupt():
+        with global_compiler_lock:          # as numba holds it while compiling
+            os.kill(os.getpid(), signal.SIGTERM)
+            for _ in range(1000):           # the handler runs at a bytecode boundary in here
+                pass
+            reached.append(twice(1.5))      # a compilation nested in the held lock
+        print("not interrupted")
+except KeyboardInterrupt as exc:
+    print("interrupted", exc, reached)
+print(twice(2.5))
+"""
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split("\n")[:2] == ["interrupted SIGTERM [3.0]", "5.0"], done.stdout

@@ -182,18 +182,37 @@ def signals_interrupt() -> Iterator[None]:
 
     On entry it loads numba's implementations (:func:`bsslam.compiled.load_compiler_registries`)
     with the signals held: a signal raised while numba half-loads them would break every
-    kernel call after it, the writing of the results so far included."""
+    kernel call after it, the writing of the results so far included. Signals are held too
+    while numba compiles or loads a kernel (its compiler lock): raised in one of LLVM's
+    callbacks into Python, the KeyboardInterrupt leaves LLVM's object cache inconsistent
+    and the process aborts (SIGABRT) at the next code generation; the signal is raised
+    once the compilation is done."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    from numba.core import event as numba_event
+
     from bsslam.compiled import load_compiler_registries
 
     holding = False
+    compiling = 0      # depth of numba's (re-entrant) compiler lock
+
+    class CompilerLockListener(numba_event.Listener):
+        def on_start(self, event):
+            nonlocal compiling
+            compiling += 1
+
+        def on_end(self, event):
+            nonlocal compiling
+            compiling -= 1
+            if compiling == 0 and not holding:
+                # the kernel is whole and numba's lock released: a held signal is raised now
+                _deliver_swallowed_signal()
 
     def interrupt(signum, frame):
         name = signal.Signals(signum).name
         _signalled.append(name)
-        if not holding:
+        if not holding and compiling == 0:
             raise KeyboardInterrupt(name)
 
     def unraisable(info):
@@ -204,6 +223,8 @@ def signals_interrupt() -> Iterator[None]:
             return
         previous_hook(info)
 
+    listener = CompilerLockListener()
+    numba_event.register("numba:compiler_lock", listener)
     previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
     previous_hook, sys.unraisablehook = sys.unraisablehook, unraisable
     try:
@@ -217,6 +238,7 @@ def signals_interrupt() -> Iterator[None]:
         sys.unraisablehook = previous_hook
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        numba_event.unregister("numba:compiler_lock", listener)
 
 
 #: Signals the handler raised for. A KeyboardInterrupt raised while the interpreter is in
