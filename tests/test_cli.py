@@ -109,6 +109,39 @@ def test_consistency_and_heading_gain_write_their_csvs(tmp_path):
     assert rows[0] == ["update", "sigma0_rad", "mean_sigma_phi_rad"] and len(rows) == 1 + 3 * 3
 
 
+def test_the_consistency_experiment_starts_from_a_config_file(tmp_path):
+    """``--config``: the variant starts from the file's settings (here a shared range error
+    and the invariant EKF), the numbers those of the library called with that base; the
+    options given on the command line win over the file; a bad file is one line, exit 2."""
+    import dataclasses
+
+    from bsslam.config import SLAMConfig
+    from bsslam.experiments.consistency import consistency_experiment
+
+    cfg = tmp_path / "shared.yaml"
+    cfg.write_text("estimator: invariant\nobservation:\n  sigma_shared_m: 0.01\n")
+    args = ("experiment", "consistency", "--variant", "no-extension", "--runs", 2, "--steps", 8, "--workers", 1)
+    invoke(*args, "--config", cfg, "--out", tmp_path / "with")
+    invoke(*args, "--out", tmp_path / "without")
+    invoke(*args, "--config", cfg, "--estimator", "ekf", "--out", tmp_path / "ekf")
+
+    def nees(name):
+        return np.array([float(r[1]) for r in list(csv.reader(open(tmp_path / name / "latest" / "nees.csv")))[1:]])
+
+    base = SLAMConfig(estimator="invariant")
+    base = base.replace(observation=dataclasses.replace(base.observation, sigma_shared_m=0.01))
+    expected = consistency_experiment("no-extension", runs=2, steps=8, workers=1, base=base).mean_nees
+    np.testing.assert_allclose(nees("with"), expected, rtol=1e-5)      # the CSV's 6 significant digits
+    assert np.abs(nees("with") - nees("without")).max() > 1e-3
+    summary = json.loads((tmp_path / "ekf" / "latest" / "summary.json").read_text())
+    assert summary["estimator"] == "ekf" and summary["config"] == str(cfg)
+    assert json.loads((tmp_path / "without" / "latest" / "summary.json").read_text())["estimator"] == "ekf"
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("observation:\n  sigma_shared_m: nope\n")
+    result = runner.invoke(app, [str(a) for a in (*args, "--config", bad, "--out", tmp_path / "bad")])
+    assert result.exit_code == 2 and str(bad) in result.output and "Traceback" not in result.output
+
+
 @pytest.mark.skipif(not (DATA / "intel" / "intel-rawodom.clf").exists(), reason="shared/data/intel is absent")
 def test_run_on_the_first_150_intel_scans(tmp_path):
     out = tmp_path / "run"

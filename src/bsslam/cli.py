@@ -817,23 +817,33 @@ def consistency(variant: Variant = typer.Option(..., help="Which filter variant.
                 steps: Optional[int] = typer.Option(None, min=1, help="Steps per run (default: the double loop)."),
                 workers: Optional[int] = typer.Option(None, help=WORKERS_HELP),
                 scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
-                estimator: Estimator = typer.Option(Estimator.ekf, help=ESTIMATOR_HELP),
-                significant_bends: bool = typer.Option(False, help="What a map spline says along itself "
-                                                       "limited to its significant bend "
-                                                       "(observation.significant_bends_only); off: the paper's "
-                                                       "update."),
+                estimator: Optional[Estimator] = typer.Option(
+                    None, help=ESTIMATOR_HELP + " [default: the --config file's, else ekf]", show_default=False),
+                significant_bends: Optional[bool] = typer.Option(
+                    None, help="What a map spline says along itself limited to its significant bend "
+                    "(observation.significant_bends_only); off: the paper's update. [default: the --config "
+                    "file's, else off]", show_default=False),
+                config_file: Optional[Path] = typer.Option(
+                    None, "--config", help="YAML configuration the variant starts from (e.g. observation "
+                    "noise); the variant's own settings and the simulator's noise take precedence."),
                 out: Path = typer.Option(Path("results/consistency"), help=OUT_HELP)) -> None:
     """Paper Figs. 10/12: average pose NEES over Monte Carlo runs with the 95% χ² band."""
     import dataclasses
 
     from bsslam.experiments.consistency import consistency_experiment, write_consistency
 
-    from bsslam.config import SLAMConfig
-
+    try:
+        base = _load_config(config_file) if config_file else _load_config(None).replace(estimator="ekf")
+    except BsslamError as exc:
+        fail(exc)
+    if estimator is not None:
+        base = base.replace(estimator=estimator.value)
+    if significant_bends is not None:
+        base = base.replace(observation=dataclasses.replace(base.observation, significant_bends_only=significant_bends))
     settings = {"experiment": "consistency", "variant": variant.value, "runs": runs, "seed": seed, "world": world,
-                "steps": steps, "estimator": estimator.value, "significant_bends": significant_bends}
-    base = SLAMConfig(estimator=estimator.value)
-    base = base.replace(observation=dataclasses.replace(base.observation, significant_bends_only=significant_bends))
+                "steps": steps, "estimator": base.estimator,
+                "significant_bends": base.observation.significant_bends_only,
+                "config": str(config_file) if config_file else None}
     with experiment_folder(out, settings) as run_dir:
         with progress_bar(f"consistency ({variant.value})", runs, "runs") as update:
             res = consistency_experiment(variant.value, runs=runs, seed=seed, world=world, steps=steps,
