@@ -124,4 +124,7 @@ def _run_on(client, fn: Callable[[object], T], items: list, progress: Progress |
     except BaseException:
         client.cancel(futures)
         raise
+    # Forget the results on the scheduler before the workers that hold them close: else
+    # each closing worker "loses" them and the scheduler warns that it must recompute them.
+    client.cancel(futures)
     return results
