@@ -362,3 +362,37 @@ print(twice(2.5))
     done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert done.stdout.split("\n")[:2] == ["interrupted SIGTERM [3.0]", "5.0"], done.stdout
+
+
+def test_a_signal_that_ended_the_run_is_not_raised_again_while_the_results_are_written():
+    """A signal's KeyboardInterrupt that reached the run (which then writes its results so
+    far) is not raised a second time when a kernel is first called while they are written
+    (the end of its compilation raises only a signal held during it), so they are written
+    whole. (In a subprocess: the signal must not reach pytest.)"""
+    script = """
+import os, signal
+from numba import njit
+from bsslam.cli import signals_interrupt
+
+@njit
+def twice(x):
+    return 2.0 * x
+
+with signals_interrupt():
+    try:
+        os.kill(os.getpid(), signal.SIGTERM)
+        for _ in range(1000):           # the handler runs at a bytecode boundary in here
+            pass
+        print("not interrupted")
+    except KeyboardInterrupt as exc:
+        print("interrupted", exc)       # as run_dataset does; then it writes the results
+    try:
+        print(twice(1.5))               # a kernel first called while writing them
+        print("written")
+    except KeyboardInterrupt:
+        print("interrupted again")
+"""
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split("\n")[:3] == ["interrupted SIGTERM", "3.0", "written"], done.stdout

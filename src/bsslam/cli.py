@@ -196,6 +196,7 @@ def signals_interrupt() -> Iterator[None]:
 
     holding = False
     compiling = 0      # depth of numba's (re-entrant) compiler lock
+    held_in_compile = False   # a signal came while it was held
 
     class CompilerLockListener(numba_event.Listener):
         def on_start(self, event):
@@ -203,16 +204,22 @@ def signals_interrupt() -> Iterator[None]:
             compiling += 1
 
         def on_end(self, event):
-            nonlocal compiling
+            nonlocal compiling, held_in_compile
             compiling -= 1
-            if compiling == 0 and not holding:
-                # the kernel is whole and numba's lock released: a held signal is raised now
+            if compiling == 0 and held_in_compile and not holding:
+                # the kernel is whole and numba's lock released: the held signal is raised
+                # now (only one held here: one that already reached the run ended it, and
+                # raising it again would cut short the writing of the results so far)
+                held_in_compile = False
                 _deliver_swallowed_signal()
 
     def interrupt(signum, frame):
+        nonlocal held_in_compile
         name = signal.Signals(signum).name
         _signalled.append(name)
-        if not holding and compiling == 0:
+        if compiling:
+            held_in_compile = True
+        elif not holding:
             raise KeyboardInterrupt(name)
 
     def unraisable(info):
