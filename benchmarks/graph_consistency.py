@@ -46,12 +46,13 @@ CHI2_95 = 7.815
 
 def run_recording_seams(log: Path, seed: int | None, config: SLAMConfig):
     """One run; returns it and, per frozen submap, the local filter's end covariance (3, 3)
-    and the distance travelled in it (m), as the backend's ``seam_covariance`` saw them."""
-    seams: list[tuple[np.ndarray, float]] = []
+    as the backend's ``seam_covariance`` saw it (the frozen submap keeps only the sum with
+    the drift)."""
+    seams: list[np.ndarray] = []
     original = backend.seam_covariance
 
     def recording(filter_covariance, distance_m, cfg):
-        seams.append((np.array(filter_covariance, dtype=float), float(distance_m)))
+        seams.append(np.array(filter_covariance, dtype=float))
         return original(filter_covariance, distance_m, cfg)
 
     backend.seam_covariance = recording
@@ -63,12 +64,6 @@ def run_recording_seams(log: Path, seed: int | None, config: SLAMConfig):
     finally:
         backend.seam_covariance = original
     return result, seams
-
-
-def drift_covariance(distance_m: float, config: SLAMConfig) -> np.ndarray:
-    """(3, 3) what ``seam_covariance`` adds for ``distance_m`` travelled."""
-    cfg = config.submaps
-    return np.diag(np.square([cfg.seam_drift_m_per_m * distance_m] * 2 + [cfg.seam_drift_rad_per_m * distance_m]))
 
 
 def nees(error: np.ndarray, covariance: np.ndarray) -> float:
@@ -90,7 +85,8 @@ def report(log: Path, seed: int | None, reference_sigma: tuple[float, float]) ->
         print(f"{log.name}: no frozen submap")
         return
     frozen = submaps.frozen
-    drift = [drift_covariance(d, config) for _, d in seams]
+    # what the backend added to each seam for the distance travelled in the submap
+    drift = [f.end_covariance - alone for f, alone in zip(frozen, seams)]
     weights = submaps.loop_weights()
     kept = [loop for loop, w in zip(submaps.loops, weights) if w > 0.5]
 
@@ -114,7 +110,7 @@ def report(log: Path, seed: int | None, reference_sigma: tuple[float, float]) ->
     for f in frozen:
         if f.index + 1 >= len(base_step) or f.index >= len(seams):
             continue
-        a = against_reference(f.index, f.index + 1, f.end_pose, seams[f.index][0])
+        a = against_reference(f.index, f.index + 1, f.end_pose, seams[f.index])
         b = against_reference(f.index, f.index + 1, f.end_pose, f.end_covariance)
         if a is not None:
             seam_alone.append(a)
@@ -131,7 +127,7 @@ def report(log: Path, seed: int | None, reference_sigma: tuple[float, float]) ->
         pose, alone, added = np.zeros(3), np.zeros((3, 3)), np.zeros((3, 3))
         for f in range(lp.reference, lp.query):
             ja, jb = compose_jacobians(pose, frozen[f].end_pose)
-            alone = ja @ alone @ ja.T + jb @ seams[f][0] @ jb.T
+            alone = ja @ alone @ ja.T + jb @ seams[f] @ jb.T
             added = ja @ added @ ja.T + jb @ drift[f] @ jb.T
             pose = compose(pose, frozen[f].end_pose)
         nu = lp.relative - pose
