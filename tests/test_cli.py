@@ -142,6 +142,28 @@ def test_the_consistency_experiment_starts_from_a_config_file(tmp_path):
     assert result.exit_code == 2 and str(bad) in result.output and "Traceback" not in result.output
 
 
+def test_the_consistency_experiment_scales_the_simulated_noise(tmp_path):
+    """The noise-scale options give the library's numbers with :func:`scaled_noise`, and
+    summary.json records the scales and the results; a negative scale is a one-line error."""
+    from bsslam.config import SLAMConfig
+    from bsslam.experiments.consistency import consistency_experiment, scaled_noise
+
+    args = ("experiment", "consistency", "--variant", "no-extension", "--runs", 2, "--steps", 8, "--workers", 1)
+    invoke(*args, "--translation-noise-scale", 0.3, "--heading-noise-scale", 2, "--out", tmp_path / "s")
+    nees = np.array([float(r[1]) for r in list(csv.reader(open(tmp_path / "s" / "latest" / "nees.csv")))[1:]])
+    expected = consistency_experiment("no-extension", runs=2, steps=8, workers=1, base=SLAMConfig(estimator="ekf"),
+                                      sim=scaled_noise(translation_scale=0.3, heading_scale=2.0))
+    np.testing.assert_allclose(nees, expected.mean_nees, rtol=1e-5)
+    summary = json.loads((tmp_path / "s" / "latest" / "summary.json").read_text())
+    assert summary["noise_scales"] == {"range": 1.0, "translation": 0.3, "heading": 2.0}
+    assert summary["results"]["fraction_inside_band"] == pytest.approx(expected.fraction_inside(), abs=1e-4)
+    assert summary["results"]["mean_nees"] == pytest.approx(expected.mean_nees.mean(), abs=1e-4)
+    z = np.abs(expected.mean_error_z()).max(axis=0)
+    assert summary["results"]["largest_abs_mean_error_z"] == pytest.approx(z, abs=0.01)
+    result = runner.invoke(app, [str(a) for a in (*args, "--range-noise-scale", -1, "--out", tmp_path / "bad")])
+    assert result.exit_code == 2 and "Traceback" not in result.output
+
+
 @pytest.mark.skipif(not (DATA / "intel" / "intel-rawodom.clf").exists(), reason="shared/data/intel is absent")
 def test_run_on_the_first_150_intel_scans(tmp_path):
     out = tmp_path / "run"
