@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -51,3 +52,22 @@ def test_the_bias_statistic_is_the_mean_error_in_standard_errors():
     result = ConsistencyResult("no-extension", "w", mean_nees=np.ones(steps), lower=1.0, upper=5.0,
                                mean_errors=errors, mean_sigmas=sigmas, nees_runs=np.ones((runs, steps)))
     np.testing.assert_allclose(result.mean_error_z(), errors / sigmas * 4.0)
+
+
+def test_unbiased_runs_give_a_bias_statistic_of_unit_rms():
+    # 50 runs of zero-mean errors as large as their σ: Σ z² over 200 steps × 3 axes is χ²(600);
+    # the test fails with probability 0.2 % (two-sided 99.8 % region)
+    from scipy.stats import chi2
+
+    rng = np.random.default_rng(17)
+    runs, steps = 50, 200
+    sigmas = rng.uniform(0.01, 0.2, size=(steps, 3))
+    errors = rng.normal(size=(runs, steps, 3)) * sigmas
+    result = ConsistencyResult("no-extension", "w", mean_nees=np.ones(steps), lower=1.0, upper=5.0,
+                               mean_errors=errors.mean(axis=0), mean_sigmas=sigmas,
+                               nees_runs=np.ones((runs, steps)))
+    total = float(np.sum(result.mean_error_z() ** 2))
+    assert chi2.ppf(0.001, 600) <= total <= chi2.ppf(0.999, 600)
+    # and a bias of half a σ shared by every run is unmistakable: z = 0.5 √50 ≈ 3.5
+    biased = dataclasses.replace(result, mean_errors=result.mean_errors + 0.5 * sigmas)
+    assert np.sqrt(np.mean(biased.mean_error_z() ** 2)) > 3.0

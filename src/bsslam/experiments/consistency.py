@@ -124,9 +124,11 @@ class ConsistencyResult:
     def mean_error_z(self) -> np.ndarray:
         """(N, 3) the runs' mean pose error (x, y, φ) in standard errors, mean error ÷
         (mean σ / √runs): about N(0, 1) per step and axis if the runs' errors are zero-mean
-        and as large as the filter's σ says. A NEES above its band with |z| ≫ 1 means the
-        runs share a bias — the filter errs the same way every time — rather than
-        underrated noise alone."""
+        and as large as the filter's σ says, so its RMS over the steps is about 1. An RMS
+        ≫ 1 means the runs share a bias — the filter errs the same way every time, which
+        more runs do not average out — where a NEES above its band with an RMS near 1 is
+        noise the filter underrates. (The mean over 50 runs of the simulated double loops:
+        RMS 1.0–1.4 in ``mixed``, 3–8 along the corridor loop's straights.)"""
         runs = self.nees_runs.shape[0]
         with np.errstate(divide="ignore", invalid="ignore"):
             return self.mean_errors / (self.mean_sigmas / math.sqrt(runs))
