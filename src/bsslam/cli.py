@@ -876,7 +876,8 @@ def consistency(variant: Variant = typer.Option(..., help="Which filter variant.
         with progress_bar(f"consistency ({variant.value})", runs, "runs") as update:
             res = consistency_experiment(variant.value, runs=runs, seed=seed, world=world, steps=steps,
                                          workers=workers, scheduler=scheduler, progress=update, base=base, sim=sim)
-        write_consistency(res, run_dir)
+        scales = {"range": range_noise_scale, "translation": translation_noise_scale, "heading": heading_noise_scale}
+        write_consistency(res, run_dir, ", ".join(f"{k} noise × {v:g}" for k, v in scales.items() if v != 1.0))
         exit_step = res.first_exit()
         z = np.sqrt(np.nanmean(res.mean_error_z() ** 2, axis=0))
         settings["results"] = {   # in summary.json too

@@ -159,8 +159,9 @@ def consistency_experiment(variant: str, runs: int = 50, seed: int = 0, world: s
     )
 
 
-def write_consistency(result: ConsistencyResult, run_dir: Path) -> list[Path]:
-    """``nees.csv`` (step,mean_nees,lower,upper), ``errors.csv`` and the PNGs."""
+def write_consistency(result: ConsistencyResult, run_dir: Path, note: str = "") -> list[Path]:
+    """``nees.csv`` (step,mean_nees,lower,upper), ``errors.csv`` and the PNGs (``note``, e.g.
+    the simulated noise's scales, goes into their titles)."""
     from bsslam.viz import plot_errors_with_bounds, plot_nees, new_figure, save_figure
 
     run_dir = Path(run_dir)
@@ -180,11 +181,11 @@ def write_consistency(result: ConsistencyResult, run_dir: Path) -> list[Path]:
     fig = new_figure()
     ax = fig.add_subplot()
     plot_nees(ax, result.steps, result.mean_nees, result.lower, result.upper,
-              title=f"{result.variant}: average NEES over {runs} runs ({result.world})")
+              title=f"{result.variant}: average NEES over {runs} runs ({result.world}{', ' + note if note else ''})")
     save_figure(fig, [paths[2]])
     fig = new_figure(height_in=8.0)
     axes = fig.subplots(3, 1, sharex=True)
     plot_errors_with_bounds(axes, result.steps, result.mean_errors, result.mean_sigmas)
-    axes[0].set_title(f"{result.variant}: mean pose error and ±2σ ({runs} runs)")
+    axes[0].set_title(f"{result.variant}: mean pose error and ±2σ ({runs} runs{', ' + note if note else ''})")
     save_figure(fig, [paths[3]])
     return paths
