@@ -257,6 +257,16 @@ def test_a_signal_mid_run_ends_simulate_cleanly(tmp_path, sig):
     assert (tmp_path / "latest").resolve() == previous
 
 
+
+def _run_python(script: str, timeout: float) -> subprocess.CompletedProcess:
+    """``script`` run by a fresh interpreter with this checkout's ``src`` first on its path
+    (a signal sent there must not reach pytest); asserts it exits 0."""
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=timeout)
+    assert done.returncode == 0, done.stderr
+    return done
+
+
 def test_a_signal_swallowed_in_a_ctypes_callback_is_silent_and_delivered_again():
     """numba calls back into Python while it compiles; a signal landing there raises in the
     callback, where the interpreter drops the exception (and prints it as a traceback). It
@@ -279,9 +289,7 @@ with signals_interrupt():
     except KeyboardInterrupt as exc:
         print("delivered", exc)
 """
-    env = {**os.environ, "PYTHONPATH": str(SRC)}
-    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, done.stderr
+    done = _run_python(script, timeout=120)
     assert done.stdout.strip() == "delivered SIGINT"
     assert "Traceback" not in done.stderr and "Exception ignored" not in done.stderr, done.stderr
 
@@ -322,9 +330,7 @@ def twice(x):
     return 2.0 * x
 print(twice(1.5))
 """
-    env = {**os.environ, "PYTHONPATH": str(SRC)}
-    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr
+    done = _run_python(script, timeout=300)
     assert done.stdout.split("\n")[:2] == ["interrupted SIGTERM [True]", "3.0"], done.stdout
 
 
@@ -358,9 +364,7 @@ except KeyboardInterrupt as exc:
     print("interrupted", exc, reached)
 print(twice(2.5))
 """
-    env = {**os.environ, "PYTHONPATH": str(SRC)}
-    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr
+    done = _run_python(script, timeout=300)
     assert done.stdout.split("\n")[:2] == ["interrupted SIGTERM [3.0]", "5.0"], done.stdout
 
 
@@ -392,7 +396,5 @@ with signals_interrupt():
     except KeyboardInterrupt:
         print("interrupted again")
 """
-    env = {**os.environ, "PYTHONPATH": str(SRC)}
-    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr
+    done = _run_python(script, timeout=300)
     assert done.stdout.split("\n")[:3] == ["interrupted SIGTERM", "3.0", "written"], done.stdout
