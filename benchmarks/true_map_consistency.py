@@ -23,7 +23,7 @@ import numpy as np
 
 from bsslam.config import SLAMConfig
 from bsslam.eval import chi2_band
-from bsslam.experiments.consistency import simulation_config, variant_config
+from bsslam.experiments.consistency import ConsistencyResult, simulation_config, variant_config
 from bsslam.se2 import between
 from bsslam.sim import SimConfig, get_world, simulate
 from bsslam.slam.features import MapSpline
@@ -81,16 +81,15 @@ def main() -> None:
     config = simulation_config(variant_config("no-extension", SLAMConfig(estimator=args.estimator)), sim)
     splines = true_map(world, args.knots)
     runs = [localise(world, splines, config, sim, seed) for seed in range(args.runs)]
-    nees = np.mean([r[0] for r in runs], axis=0)
-    errors = np.mean([r[1] for r in runs], axis=0)
-    sigmas = np.mean([r[2] for r in runs], axis=0)
     lower, upper = chi2_band(3, args.runs)
-    z = errors / (sigmas / np.sqrt(args.runs))
-    rms = np.sqrt(np.mean(z ** 2, axis=0))
+    result = ConsistencyResult("no-extension", args.world, mean_nees=np.mean([r[0] for r in runs], axis=0),
+                               lower=lower, upper=upper, mean_errors=np.mean([r[1] for r in runs], axis=0),
+                               mean_sigmas=np.mean([r[2] for r in runs], axis=0),
+                               nees_runs=np.array([r[0] for r in runs]))
+    bias = result.shared_bias()
     print(f"{args.world}, true walls at {args.knots:g} m knots, {args.runs} runs, {args.estimator}: "
-          f"inside the band on {np.mean((nees >= lower) & (nees <= upper)):.0%} of {nees.size} steps, "
-          f"mean NEES {nees.mean():.2f}, shared bias (x, y, φ) {rms[0]:.1f}, {rms[1]:.1f}, {rms[2]:.1f}")
-
+          f"inside the band on {result.fraction_inside():.0%} of {result.mean_nees.size} steps, "
+          f"mean NEES {result.mean_nees.mean():.2f}, shared bias (x, y, φ) {bias[0]:.1f}, {bias[1]:.1f}, {bias[2]:.1f}")
 
 if __name__ == "__main__":
     main()

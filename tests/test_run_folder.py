@@ -257,7 +257,6 @@ def test_a_signal_mid_run_ends_simulate_cleanly(tmp_path, sig):
     assert (tmp_path / "latest").resolve() == previous
 
 
-
 def _run_python(script: str, timeout: float) -> subprocess.CompletedProcess:
     """``script`` run by a fresh interpreter with this checkout's ``src`` first on its path
     (a signal sent there must not reach pytest); asserts it exits 0."""

@@ -133,6 +133,11 @@ class ConsistencyResult:
         with np.errstate(divide="ignore", invalid="ignore"):
             return self.mean_errors / (self.mean_sigmas / math.sqrt(runs))
 
+    def shared_bias(self) -> np.ndarray:
+        """(3,) the RMS over the steps of :meth:`mean_error_z` per axis (x, y, φ): about 1
+        when the runs share no bias."""
+        return np.sqrt(np.nanmean(self.mean_error_z() ** 2, axis=0))
+
 
 def consistency_experiment(variant: str, runs: int = 50, seed: int = 0, world: str = "rounded-room",
                            steps: int | None = None, workers: int | None = None, progress=None,
@@ -165,6 +170,7 @@ def write_consistency(result: ConsistencyResult, run_dir: Path, note: str = "") 
     from bsslam.viz import plot_errors_with_bounds, plot_nees, new_figure, save_figure
 
     run_dir = Path(run_dir)
+    suffix = f", {note}" if note else ""
     paths = [run_dir / "nees.csv", run_dir / "errors.csv", run_dir / "nees.png", run_dir / "errors.png"]
     with atomic_write(paths[0], "w", newline="") as fh:
         w = csv.writer(fh)
@@ -181,11 +187,11 @@ def write_consistency(result: ConsistencyResult, run_dir: Path, note: str = "") 
     fig = new_figure()
     ax = fig.add_subplot()
     plot_nees(ax, result.steps, result.mean_nees, result.lower, result.upper,
-              title=f"{result.variant}: average NEES over {runs} runs ({result.world}{', ' + note if note else ''})")
+              title=f"{result.variant}: average NEES over {runs} runs ({result.world}{suffix})")
     save_figure(fig, [paths[2]])
     fig = new_figure(height_in=8.0)
     axes = fig.subplots(3, 1, sharex=True)
     plot_errors_with_bounds(axes, result.steps, result.mean_errors, result.mean_sigmas)
-    axes[0].set_title(f"{result.variant}: mean pose error and ±2σ ({runs} runs{', ' + note if note else ''})")
+    axes[0].set_title(f"{result.variant}: mean pose error and ±2σ ({runs} runs{suffix})")
     save_figure(fig, [paths[3]])
     return paths
