@@ -266,6 +266,36 @@ def _run_python(script: str, timeout: float) -> subprocess.CompletedProcess:
     return done
 
 
+def test_a_signal_just_after_the_folder_is_made_still_marks_it(tmp_path):
+    """A signal arriving between making the run folder and the guard that marks it (the
+    CLI's mid-run signal test hit that window) is held until the guard is in place: the
+    run is interrupted and its folder says so. (In a subprocess: the signal must not reach
+    pytest.)"""
+    script = f"""
+import json, os, signal
+import bsslam.io.results as results
+
+real = results.create_run_dir
+
+def create_then_signalled(out):
+    run = real(out)
+    os.kill(os.getpid(), signal.SIGINT)
+    for _ in range(1000):      # the handler would run at a bytecode boundary in here
+        pass
+    return run
+
+results.create_run_dir = create_then_signalled
+try:
+    with results.run_folder({str(tmp_path)!r}) as run:
+        print("body reached")
+except KeyboardInterrupt:
+    (run,) = [p for p in os.scandir({str(tmp_path)!r}) if p.is_dir()]
+    print(json.load(open(os.path.join(run.path, "summary.json")))["status"])
+"""
+    done = _run_python(script, timeout=120)
+    assert done.stdout.split() == ["interrupted"], done.stdout + done.stderr
+
+
 def test_a_signal_swallowed_in_a_ctypes_callback_is_silent_and_delivered_again():
     """numba calls back into Python while it compiles; a signal landing there raises in the
     callback, where the interpreter drops the exception (and prints it as a traceback). It

@@ -24,6 +24,8 @@ import contextlib
 import datetime as _dt
 import json
 import os
+import signal
+import threading
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -145,16 +147,58 @@ def interrupt_reason(exc: KeyboardInterrupt) -> str:
 def run_folder(out: str | os.PathLike) -> Iterator[Path]:
     """The lifecycle of one run folder: create it, yield it, then publish it when the body
     wrote a complete summary; on a KeyboardInterrupt mark it interrupted, on any other
-    exception failed (with the exception's message as reason), and re-raise."""
-    with _published(create_run_dir(out)) as run:
+    exception failed (with the exception's message as reason), and re-raise.
+
+    SIGINT and SIGTERM are held from before the folder is made until the marking is in
+    place: a signal's KeyboardInterrupt between the two left a folder that said nothing
+    (the CLI's signal test caught one in a few dozen runs); it is raised again, to the
+    handlers that were there, once the folder would be marked."""
+    held = _hold_signals()
+    try:
+        run = create_run_dir(out)
+    except BaseException:
+        _release_signals(held)
+        raise
+    with _published(run, lambda: _release_signals(held)) as run:
         yield run
 
 
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def _hold_signals() -> tuple[dict, list] | None:
+    """Replace the SIGINT and SIGTERM handlers by one that only notes the signal: (the
+    previous handlers, the signals noted), or None off the main thread, where handlers
+    cannot be set. (Blocking them with ``pthread_sigmask`` is not enough: the kernel hands
+    a process signal to another thread — a BLAS worker — and Python runs the handler in the
+    main thread all the same.)"""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    noted: list[int] = []
+    previous = {sig: signal.signal(sig, lambda signum, frame: noted.append(signum)) for sig in _STOP_SIGNALS}
+    return previous, noted
+
+
+def _release_signals(held: tuple[dict, list] | None) -> None:
+    """Undo :func:`_hold_signals`; a signal noted meanwhile is raised again, now to the
+    previous handler."""
+    if held is None:
+        return
+    previous, noted = held
+    for sig, handler in previous.items():
+        signal.signal(sig, handler)
+    if noted:
+        signal.raise_signal(noted[0])
+
+
 @contextlib.contextmanager
-def _published(run: Path) -> Iterator[Path]:
+def _published(run: Path, ready=None) -> Iterator[Path]:
     """Yield ``run``; publish it after the body, or mark it interrupted (KeyboardInterrupt)
-    or failed (any other exception, its message the reason) and re-raise."""
+    or failed (any other exception, its message the reason) and re-raise. ``ready()``, if
+    given, is called first, inside that guard (the caller's held signals let in)."""
     try:
+        if ready is not None:
+            ready()
         yield run
     except KeyboardInterrupt as exc:
         mark_unfinished(run, "interrupted", interrupt_reason(exc))
