@@ -9,7 +9,6 @@ import bsslam.slam.filter as filter_module
 from bsslam.config import SLAMConfig
 from bsslam.scan import LaserScan, extract_splines
 from bsslam.slam import SplineSLAM
-from bsslam.slam.association import Match
 from bsslam.spline import closest_point
 
 HEADING = np.pi / 2  # the robot at the origin faces +y
@@ -39,12 +38,7 @@ def test_extension_carries_covariance_exactly(side, monkeypatch):
     obs = extract_splines(wall_scan(-3.0, 1.0) if side == "right" else wall_scan(-1.0, 3.0), config).splines[0]
     obs_world = obs.curve.transformed(HEADING, np.zeros(2))
     u_end = closest_point(obs_world, curve.evaluate(np.array([hi if side == "right" else lo])))[0][0]
-    if side == "right":
-        match = Match(feature.id, obs_world.domain[0], u_end, lo, hi, at_lo=True, at_hi=True)
-        sel = obs.params > u_end
-    else:
-        match = Match(feature.id, u_end, obs_world.domain[1], lo, hi, at_lo=True, at_hi=True)
-        sel = obs.params < u_end
+    sel = obs.params > u_end if side == "right" else obs.params < u_end
     assert sel.sum() > 20
 
     old_idx = feature.state_indices.copy()
@@ -59,7 +53,7 @@ def test_extension_carries_covariance_exactly(side, monkeypatch):
         return captured["ext"]
 
     monkeypatch.setattr(filter_module, "extend_curve", spy)
-    assert slam._extend_feature(feature, obs, match, side, sel, np.zeros(3))
+    assert slam._extend_feature(feature, obs, side, sel, np.zeros(3))
     ext = captured["ext"]
     assert ext.n_added >= 1
 

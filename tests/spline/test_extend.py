@@ -11,7 +11,7 @@ from spline_cases import curves
 
 from bsslam.errors import FitError, SplineError
 from bsslam.spline import BSplineCurve, chord_length_parameters, clamped_knots, fit_curve
-from bsslam.spline.extend import extend_curve, unclamp
+from bsslam.spline.extend import continuation_parameters, extend_curve, unclamp
 
 SETTINGS = settings(max_examples=50, deadline=None)
 SIDES = ("left", "right")
@@ -178,3 +178,43 @@ def test_extension_errors():
         extend_curve(curve, "middle", data, params, 1.0)
     with pytest.raises(SplineError, match="params"):
         extend_curve(curve, "right", data, params[:-1], 1.0)
+
+
+@pytest.mark.parametrize("side", SIDES)
+def test_continuation_parameters_continue_the_chord_length_of_the_wall(side):
+    """New points of the same arc, in scan order, get the arc's own chord-length parameters
+    (those the old curve was fitted on) to well below a millimetre; points not yet past the
+    end (the old curve's last stretch, seen again) are left out."""
+    curve, data, params, _ = _old_and_new(side, 3)
+    phi = np.linspace(0.0, 2.0, 400)          # _old_and_new's: the old curve ends at phi[199] / starts at phi[200]
+    overlap = _arc(phi[[196, 197, 198]] if side == "right" else phi[[201, 202, 203]])
+    points = np.vstack([overlap, data]) if side == "right" else np.vstack([data, overlap])
+    beyond, got = continuation_parameters(curve, side, points)
+    np.testing.assert_array_equal(beyond, np.r_[np.zeros(3, bool), np.ones(len(data), bool)] if side == "right"
+                                  else np.r_[np.ones(len(data), bool), np.zeros(3, bool)])
+    np.testing.assert_allclose(got, params, rtol=0, atol=1e-4)
+    assert np.all(np.diff(got) > 0)
+    assert (got[0] > curve.domain[1]) if side == "right" else (got[-1] < curve.domain[0])
+
+
+@pytest.mark.parametrize("side", SIDES)
+def test_data_shifted_along_the_curve_bend_the_extension_away_from_the_wall(side):
+    """Why the parameters come from the points' geometry: the same arc data with their
+    parameters 5 cm off (an association interval ended 5 cm early or late) give an
+    extension 3.6 mm off the 6 m arc — far more than a map spline's σ, and the same in every
+    run that matched the same way — where the continued chord length follows it to 0.05 mm."""
+    curve, data, _, _ = _old_and_new(side, 3)
+    _, params = continuation_parameters(curve, side, data)
+    shift = 0.05 if side == "right" else -0.05
+    radius_error = {}
+    for name, p in (("geometric", params), ("shifted", params + shift)):
+        ext = extend_curve(curve, side, data, p, 1.0)
+        radius_error[name] = np.abs(np.linalg.norm(ext.curve.evaluate(p), axis=1) - 6.0).max()
+    assert radius_error["geometric"] < 2e-4
+    assert radius_error["shifted"] > 2e-3
+
+
+def test_no_point_past_the_end_gives_no_parameters():
+    curve, _, _, _ = _old_and_new("right", 3)
+    beyond, params = continuation_parameters(curve, "right", _arc(np.linspace(0.5, 0.9, 5)))
+    assert not beyond.any() and params.shape == (0,)

