@@ -322,6 +322,12 @@ class MappingConfig:
             spline. The extension continues the old curve with C² continuity, so a short,
             sparse stretch inherits the noisy end curvature of the old fit and can bend away
             from the wall by centimetres; this check keeps such bends out of the map.
+        extension_fit_probability: an extension is kept only if its new points' squared
+            distances to the extended curve, in units of ``observation.sigma_range_m``, sum to
+            no more than this quantile of χ² with (points − new control points) degrees of
+            freedom: the extension must fit its points as well as range noise explains,
+            as well as within ``max_extension_rms_m`` (which bounds it where the range σ
+            is large for walls' model error). None: the RMS bound alone.
         fit_bias_sigmas: a new map spline is refitted with half the knot spacing (down to
             ``spline.min_knot_spacing_m``) while the finer fit differs from it, somewhere
             along the normal, by more than this many σ of that difference under range
@@ -345,6 +351,7 @@ class MappingConfig:
     extend: bool = True
     min_extension_m: float = 0.5
     max_extension_rms_m: float = 0.015
+    extension_fit_probability: float | None = 0.99
     fit_bias_sigmas: float | None = 4.0
     prune_after_scans: int = 0
 
@@ -352,6 +359,8 @@ class MappingConfig:
         _check(self.min_extension_m >= 0, "mapping.min_extension_m must be ≥ 0")
         _check(self.prune_after_scans >= 0, "mapping.prune_after_scans must be ≥ 0")
         _check(self.max_extension_rms_m > 0, "mapping.max_extension_rms_m must be > 0")
+        _check(self.extension_fit_probability is None or 0 < self.extension_fit_probability < 1,
+               "mapping.extension_fit_probability must be in (0, 1) or None")
         _check(self.fit_bias_sigmas is None or self.fit_bias_sigmas > 0,
                "mapping.fit_bias_sigmas must be > 0 or None")
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bsslam.chi2 import chi2_quantile
 from bsslam.config import SLAMConfig
 from bsslam.errors import FitError, InputError
 from bsslam.scan import LaserScan, ObservedSpline, ScanFeatures, extract_splines
@@ -473,7 +474,7 @@ class SplineSLAM:
         # the fit check, by the compiled search (closest_point's sampling, starts and Newton)
         fitted = curve_table([ext.curve.knots], [ext.curve.degree]).with_control_points(ext.curve.control_points)
         _, _, dist = closest_points_batch(fitted, np.zeros(bp.points.shape[0], dtype=np.intp), bp.points)
-        if np.sqrt(np.mean(dist ** 2)) > self.config.mapping.max_extension_rms_m:
+        if not self._extension_fits(dist, ext.n_added):
             return False
         n_old, m = curve.n_control, ext.n_added
         new_rows = ext.psi[n_old:] if side == "right" else ext.psi[:m]
@@ -496,6 +497,24 @@ class SplineSLAM:
         self.state.anchor(f.idx_x, f.idx_y)
         self.spline_map.extended(f, fitted.table)
         return True
+
+    def _extension_fits(self, distances: np.ndarray, new_control_points: int) -> bool:
+        """Whether an extension's new points lie close enough to the extended curve, their
+        ``distances`` (k,) (m): within ``mapping.max_extension_rms_m`` RMS, and (unless
+        ``mapping.extension_fit_probability`` is None) their squared distances in range σ
+        within that χ² quantile of (k − new control points) degrees of freedom.
+
+        The extension continues the old curve with C² continuity, so a stretch it cannot
+        follow bends it away from the wall by millimetres that range noise does not explain;
+        the filter then reads that bend as shape in every run that extended there (the
+        simulated double loops with extension, 50 runs: mixed 66 → 94 % of steps in band)."""
+        mapping = self.config.mapping
+        if np.sqrt(np.mean(distances ** 2)) > mapping.max_extension_rms_m:
+            return False
+        if mapping.extension_fit_probability is None:
+            return True
+        chi2 = float(np.sum((distances / self.config.observation.sigma_range_m) ** 2))
+        return chi2 <= chi2_quantile(mapping.extension_fit_probability, max(distances.shape[0] - new_control_points, 1))
 
     def _prune(self) -> int:
         """Remove map splines never used in an update within ``prune_after_scans`` scans of
