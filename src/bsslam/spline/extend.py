@@ -17,7 +17,7 @@ import numpy as np
 from bsslam.errors import FitError, SplineError
 from bsslam.spline import extend_kernels
 from bsslam.spline.curve import BSplineCurve, as_points
-from bsslam.spline.fit import least_squares_operator
+from bsslam.spline.fit import chord_length_parameters, least_squares_operator
 from bsslam.spline.knots import check_degree, check_knots, span_count
 
 _SIDES = ("left", "right")
@@ -124,7 +124,7 @@ def continuation_parameters(curve: BSplineCurve, side: str, points: object) -> t
     out = pts[beyond] if right else pts[beyond][::-1]             # from the end outwards
     if out.shape[0] == 0:
         return beyond, np.empty(0)
-    dist = float((out[0] - end) @ tangent) + np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(out, axis=0).T))])
+    dist = chord_length_parameters(out, float((out[0] - end) @ tangent))
     return beyond, (hi + dist if right else (lo - dist)[::-1])
 
 
