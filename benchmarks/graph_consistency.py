@@ -77,6 +77,16 @@ def median_and_beyond(values: list[float]) -> str:
     return f"{np.median(v):.2f}, {100 * np.mean(v > CHI2_95):.0f} %"
 
 
+def reference_bases(result, log: Path):
+    """The reference trajectory (``LOG.gt.txt``) of a submap run and, per submap base, the
+    index of its reference pose (−1 where none lies within 50 ms): a base is the scan its
+    submap started at, the last step of the submap before it (the first scan for base 0)."""
+    steps = np.asarray(result.step_submaps)
+    base_step = [0] + [int(np.flatnonzero(steps == k)[-1]) for k in range(len(result.submaps.frozen))]
+    reference = read_trajectory(log.with_suffix(".gt.txt"))
+    return reference, nearest_stamps(reference.stamps, result.estimate.stamps[base_step], 0.05)
+
+
 def report(log: Path, seed: int | None, reference_sigma: tuple[float, float]) -> None:
     config = SLAMConfig()
     result, seams = run_recording_seams(log, seed, config)
@@ -90,12 +100,7 @@ def report(log: Path, seed: int | None, reference_sigma: tuple[float, float]) ->
     weights = submaps.loop_weights()
     kept = [loop for loop, w in zip(submaps.loops, weights) if w > 0.5]
 
-    # the scan each base was frozen at: the last step of the submap before it
-    steps = np.asarray(result.step_submaps)
-    base_step = [0] + [int(np.flatnonzero(steps == k)[-1]) for k in range(len(frozen))]
-    reference = read_trajectory(log.with_suffix(".gt.txt"))
-    stamps = result.estimate.stamps[base_step]
-    index = nearest_stamps(reference.stamps, stamps, 0.05)
+    reference, index = reference_bases(result, log)
     ref_var = np.square([reference_sigma[0], reference_sigma[0], math.radians(reference_sigma[1])])
     ref_cov = np.diag(2 * ref_var)                 # the reference's error at both ends
 
@@ -108,7 +113,7 @@ def report(log: Path, seed: int | None, reference_sigma: tuple[float, float]) ->
 
     seam_alone, seam_drift = [], []
     for f in frozen:
-        if f.index + 1 >= len(base_step) or f.index >= len(seams):
+        if f.index + 1 >= len(index) or f.index >= len(seams):
             continue
         a = against_reference(f.index, f.index + 1, f.end_pose, seams[f.index])
         b = against_reference(f.index, f.index + 1, f.end_pose, f.end_covariance)

@@ -1,0 +1,87 @@
+"""Every loop-closure candidate of one run against the reference.
+
+    python benchmarks/loop_candidates.py LOG [--seed N] [--all]
+
+A benchmark, not a test. It runs LOG once with the default configuration (``--seed``
+moves every range by 1 mm of seeded noise, as ``bsslam bench --perturb``) and lists each
+pair of submaps the backend tried to match: the verdict (``ok`` or the first check that
+failed), the verification figures (overlap m, inlier fraction, ambiguity, information
+ratio), and how far the match and the pose graph's guess were from the reference's
+relative pose of the two bases, with the match's Mahalanobis distance under its own
+covariance. It answers: are the rejected candidates right ones (a check too strict), are
+the accepted ones wrong (a check too loose), and does a wrong one's covariance admit its
+error. By default only accepted matches and rejections with at least 4 m of overlap are
+listed (``--all``: every candidate).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+import bsslam.submaps.backend as backend
+from bsslam.config import SLAMConfig
+from bsslam.io import open_dataset
+from bsslam.perturbed_dataset import PerturbedDataset
+from bsslam.pipeline import run_dataset
+from bsslam.se2 import between
+from bsslam.submaps.pose_graph import PoseGraph
+from bsslam.trajectory import wrap_angle
+from graph_consistency import reference_bases
+
+
+def run_recording_candidates(log: Path, seed: int | None, config: SLAMConfig):
+    """One run; returns it and every candidate as (reference submap, query submap, guess
+    (3,), :class:`~bsslam.submaps.loop_closure.LoopMatch`)."""
+    candidates, pair = [], [(-1, -1)]
+    match, relative = backend.match_submaps, PoseGraph.relative
+
+    def recording_relative(graph, i, j):
+        # the backend asks the graph for the pair's relative pose just before it matches them
+        pair[0] = (int(i), int(j))
+        return relative(graph, i, j)
+
+    def recording_match(reference, query, guess, covariance, window_m, window_rad, cfg):
+        result = match(reference, query, guess, covariance, window_m, window_rad, cfg)
+        candidates.append((*pair[0], np.array(guess, dtype=float), result))
+        return result
+
+    backend.match_submaps, PoseGraph.relative = recording_match, recording_relative
+    try:
+        data = open_dataset(log)
+        if seed is not None:
+            data = PerturbedDataset(data, 0.001, seed)
+        result = run_dataset(data, config, point_stride=0)
+    finally:
+        backend.match_submaps, PoseGraph.relative = match, relative
+    return result, candidates
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("log", type=Path, help="a CARMEN log with a .gt.txt reference beside it")
+    parser.add_argument("--seed", type=int, default=None, help="1 mm of range noise with this seed")
+    parser.add_argument("--all", action="store_true", help="list every candidate")
+    args = parser.parse_args()
+    result, candidates = run_recording_candidates(args.log, args.seed, SLAMConfig())
+    reference, index = reference_bases(result, args.log)
+    print(f"{args.log.name}: {len(candidates)} candidates, {sum(c[3].ok for c in candidates)} accepted")
+    print("| pair | verdict | overlap m | inliers | ambiguity | information ratio | match error m, ° | "
+          "Mahalanobis² | guess error m, ° |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for i, j, guess, m in candidates:
+        if not (args.all or m.ok or m.overlap_m >= 4.0) or index[i] < 0 or index[j] < 0:
+            continue
+        truth = between(reference.poses[index[i]], reference.poses[index[j]])
+        error, guess_error = m.relative - truth, guess - truth
+        error[2], guess_error[2] = wrap_angle(error[2]), wrap_angle(guess_error[2])
+        maha = float(error @ np.linalg.solve(m.covariance, error)) if np.all(np.isfinite(m.covariance)) else np.nan
+        print(f"| {i}→{j} | {m.reason} | {m.overlap_m:.1f} | {m.inlier_fraction:.2f} | {m.ambiguity:.2f} | "
+              f"{m.information_ratio:.2g} | {np.hypot(*error[:2]):.2f}, {np.degrees(error[2]):+.1f} | {maha:.1f} | "
+              f"{np.hypot(*guess_error[:2]):.2f}, {np.degrees(guess_error[2]):+.1f} |")
+
+
+if __name__ == "__main__":
+    main()
