@@ -23,13 +23,10 @@ import numpy as np
 
 import bsslam.submaps.backend as backend
 from bsslam.config import SLAMConfig
-from bsslam.io import open_dataset
-from bsslam.perturbed_dataset import PerturbedDataset
-from bsslam.pipeline import run_dataset
 from bsslam.se2 import between
 from bsslam.submaps.pose_graph import PoseGraph
 from bsslam.trajectory import wrap_angle
-from graph_consistency import reference_bases
+from graph_consistency import reference_bases, run_log
 
 
 def run_recording_candidates(log: Path, seed: int | None, config: SLAMConfig):
@@ -50,10 +47,7 @@ def run_recording_candidates(log: Path, seed: int | None, config: SLAMConfig):
 
     backend.match_submaps, PoseGraph.relative = recording_match, recording_relative
     try:
-        data = open_dataset(log)
-        if seed is not None:
-            data = PerturbedDataset(data, 0.001, seed)
-        result = run_dataset(data, config, point_stride=0)
+        result = run_log(log, seed, config)
     finally:
         backend.match_submaps, PoseGraph.relative = match, relative
     return result, candidates
