@@ -13,7 +13,10 @@ and both that and the raw odometry are scored against the log's reference
   end's increments under its covariance (3 would be consistent; the references themselves
   are only good to a few cm, which inflates it).
 
-Run:  python benchmarks/bench_frontend.py [--steps N] [--logs intel-noisy aces-noisy …]
+Run:  python benchmarks/bench_frontend.py [--steps N] [--logs intel-noisy aces-noisy …] [--config X.yaml]
+
+(``--config``: a ``bsslam`` YAML configuration whose ``frontend`` section is used, e.g.
+``frontend: {submap_keyframes: 100}``.)
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ import numpy as np  # noqa: E402
 from bsslam.eval import ate  # noqa: E402
 from bsslam.eval.association import associate  # noqa: E402
 from bsslam.frontend import FrontendConfig, LaserOdometry  # noqa: E402
+from bsslam.io.config_file import load_config  # noqa: E402
 from bsslam.io.open_dataset import open_dataset  # noqa: E402
 from bsslam.io.trajectory_file import read_trajectory  # noqa: E402
 from bsslam.se2 import between  # noqa: E402
@@ -43,6 +47,9 @@ LOGS = {
     "aces-noisy": "aces/aces-noisy.clf",
     "csail-rawodom": "csail/csail-rawodom.clf",
     "intel-rawodom": "intel/intel-rawodom.clf",
+    "edmonton-noisy": "edmonton/edmonton-noisy.clf",
+    "acapulco-noisy": "acapulco/acapulco-noisy.clf",
+    "freiburg-campus-noisy": "freiburg-campus/freiburg-campus-noisy.clf",
 }
 
 
@@ -96,24 +103,25 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int, default=None, help="only the first N scans of each log")
     ap.add_argument("--logs", nargs="*", default=list(LOGS), choices=list(LOGS))
+    ap.add_argument("--config", type=Path, default=None, help="YAML configuration; its frontend section is used")
     args = ap.parse_args()
-    config = FrontendConfig()
-    header = (f"{'log':15s} {'scans':>5s} {'ms/scan':>12s} {'fallbacks':>9s} {'degen':>5s} "
+    config = load_config(args.config).frontend if args.config else FrontendConfig()
+    header = (f"{'log':21s} {'scans':>5s} {'ms/scan':>12s} {'fallbacks':>9s} {'degen':>5s} "
               f"{'ATE odo':>8s} {'ATE fe':>7s} {'Δ odo m/deg':>13s} {'Δ fe m/deg':>13s} {'NEES':>11s}")
     print(header)
     for name in args.logs:
         path = DATA / LOGS[name]
         if not path.exists():
-            print(f"{name:15s} skipped: {path} not found")
+            print(f"{name:21s} skipped: {path} not found")
             continue
         r = run_log(path, args.steps, config)
         inc = lambda k: (f"{r[f'inc_xy_{k}']:.3f}/{r[f'inc_deg_{k}']:.2f}" if f"inc_xy_{k}" in r else "-")  # noqa: E731
         nees = f"{r['nees_mean']:.1f}/{r['nees_median']:.1f}" if "nees_mean" in r else "-"
-        print(f"{name:15s} {r['scans']:5d} {r['ms_median']:5.1f}/{r['ms_mean']:5.1f}ms {r['fallbacks']:9d} "
+        print(f"{name:21s} {r['scans']:5d} {r['ms_median']:5.1f}/{r['ms_mean']:5.1f}ms {r['fallbacks']:9d} "
               f"{r['degenerate']:5d} {r['ate_odo']:7.2f}m {r['ate_fe']:6.2f}m {inc('odo'):>13s} {inc('fe'):>13s} "
               f"{nees:>11s}", flush=True)
         if r["reasons"]:
-            print(f"{'':15s} fallback reasons: {r['reasons']}; keyframes {r['keyframes']}; increment pairs {r['pairs']}")
+            print(f"{'':21s} fallback reasons: {r['reasons']}; keyframes {r['keyframes']}; increment pairs {r['pairs']}")
     print("ms/scan: median/mean of LaserOdometry.step; Δ: RMS increment error between consecutive "
           "referenced scans (m / deg); NEES: mean/median of the front end's increments (3 = consistent)")
 
