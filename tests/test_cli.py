@@ -497,3 +497,29 @@ def test_the_command_exits_with_its_status_its_output_and_the_atexit_handlers(ar
     assert done.returncode == status, done.stderr
     assert text.lower() in getattr(done, stream).lower()
     assert done.stderr.rstrip().endswith("atexit ran")
+
+
+def test_bench_json_holds_every_run_and_the_spread_as_valid_json(tmp_path):
+    log = write_carmen_log(tmp_path / "one.clf", "mixed", 1, 10)
+    target = tmp_path / "bench.json"
+    out = invoke("bench", log, "--workers", 1, "--perturb", 2, "--steps", 8, "--json", target, "-q").output
+    report = json.loads(target.read_text(), parse_constant=lambda c: pytest.fail(f"{c} is not JSON"))
+    assert [r["variant"] for r in report["runs"]] == ["noise seed 0", "noise seed 1", "float32"]
+    assert all(r["log"] == "one.clf" and r["scans"] == 8 for r in report["runs"])
+    # the same figures as the table, and the spread computed from them
+    table = {line.split("│")[2].strip(): float(line.split("│")[11]) for line in out.splitlines()
+             if "one.clf" in line and ("noise" in line or "float32" in line)}
+    assert {r["variant"]: round(r["ate_m"], 3) for r in report["runs"]} == table
+    (st,) = report["stability"]
+    ates = sorted(r["ate_m"] for r in report["runs"] if r["variant"].startswith("noise"))
+    assert (st["min_m"], st["max_m"], st["runs"]) == (ates[0], ates[1], 2)
+    assert st["spread"] == pytest.approx((ates[1] - ates[0]) / st["median_m"])
+    assert report["perturb_sigma_m"] == 0.001 and report["failures"] == []
+    # '-' prints only the JSON; a log without a reference has null, not NaN, figures
+    log.with_suffix(".gt.txt").unlink()
+    printed = invoke("bench", log, "--workers", 1, "--steps", 5, "--json", "-", "-q").output
+    (run,) = json.loads(printed, parse_constant=lambda c: pytest.fail(f"{c} is not JSON"))["runs"]
+    assert run["ate_m"] is None and run["scans"] == 5 and "stability" not in json.loads(printed)
+    # a path that cannot be written is refused before any run
+    result = runner.invoke(app, ["bench", str(log), "--json", str(tmp_path / "no" / "such.json")])
+    assert result.exit_code == 2 and "--json" in result.output

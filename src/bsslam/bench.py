@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 import resource
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from functools import partial
 from pathlib import Path
 from typing import Sequence
@@ -131,6 +131,25 @@ def stability(rows: Sequence["BenchRow | BenchFailure"]) -> list[Stability]:
                                  float(np.median([r.nees_median for r in runs])),
                                  float(np.median([r.nees_outside_95 for r in runs]))))
     return out
+
+
+def bench_report(rows: Sequence["BenchRow | BenchFailure"], perturb_sigma_m: float | None = None) -> dict:
+    """The figures of a bench as one JSON-ready object: ``runs`` (every
+    :class:`BenchRow`'s fields), ``failures`` (log, message) and, with ``perturb_sigma_m``
+    (m, the ``--perturb`` noise), ``stability`` (every :class:`Stability`'s fields with its
+    ``spread`` and ``worst_ratio``). Units are in the field names (``_m``, ``_s``, ``_mb``);
+    a figure that is undefined (NaN: no reference) is ``None``, so that the JSON is valid."""
+
+    def clean(d: dict) -> dict:
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
+
+    report = {"runs": [clean(asdict(r)) for r in rows if isinstance(r, BenchRow)],
+              "failures": [asdict(r) for r in rows if isinstance(r, BenchFailure)]}
+    if perturb_sigma_m is not None:
+        report["perturb_sigma_m"] = perturb_sigma_m
+        report["stability"] = [clean({**asdict(st), "spread": st.spread, "worst_ratio": st.worst_ratio})
+                               for st in stability(rows)]
+    return report
 
 
 @dataclass(frozen=True)

@@ -671,9 +671,13 @@ def bench(
                                 "Gaussian noise (seeds 0…N−1) and once with float32 ranges, and report "
                                 "the spread of ATE: how much of a figure is the data, how much rounding."),
     perturb_sigma: float = typer.Option(0.001, min=0.0, help="σ of the --perturb noise (m)."),
+    json_file: Optional[Path] = typer.Option(None, "--json", metavar="FILE",
+                                             help="Also write every run's figures (and with --perturb the "
+                                             "spread) to FILE as JSON; '-' prints only the JSON."),
 ) -> None:
     """Accuracy and speed on several logs, one configuration for all, the logs in parallel."""
-    from bsslam.bench import BenchFailure, bench_logs, perturbations, stability
+    from bsslam.bench import BenchFailure, bench_logs, bench_report, perturbations, stability
+    from bsslam.io.atomic_file import atomic_write
     from bsslam.io.log_paths import find_logs
 
     try:
@@ -682,12 +686,26 @@ def bench(
                               "BSSLAM_DATA environment variable)")
         found = find_logs(logs or [data])
         config = _overridden(_load_config(config_file), mode, backend, max_memory)
+        if json_file is not None and json_file != Path("-"):
+            # before the runs, which may take an hour: a path that cannot be written
+            if json_file.is_dir() or not json_file.resolve().parent.is_dir():
+                raise ConfigError(f"--json {json_file}: not a file in an existing folder")
         runs = perturbations(perturb, perturb_sigma) if perturb else []
         with progress_bar(f"bench: {len(found)} log(s)", len(found) * max(len(runs), 1), "runs") as update:
             rows = bench_logs(found, config, steps=steps, workers=workers, scheduler=scheduler, progress=update,
                               perturb=runs)
     except BsslamError as exc:
         fail(exc)
+    if json_file is not None:
+        text = json.dumps(bench_report(rows, perturb_sigma if perturb else None), indent=2) + "\n"
+        if json_file == Path("-"):
+            typer.echo(text, nl=False)
+            return
+        try:
+            with atomic_write(json_file) as fh:
+                fh.write(text)
+        except BsslamError as exc:
+            fail(exc)
     # The log and its input variant are the row's key: never wrapped, whatever the terminal.
     table = Table(Column("log", no_wrap=True), Column("input", no_wrap=True), "scans", "wall s", "ms/scan",
                   "splines", "max state", "submaps", "loops", "peak RSS MB", "ATE m", "online ATE m", "odometry ATE m", "front end ATE m",
