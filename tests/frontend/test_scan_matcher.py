@@ -346,16 +346,21 @@ def test_scan_points_drops_the_beams_valid_beams_drops():
             np.testing.assert_array_equal(scan_points(scan, offset, cfg), expected)
 
 
+def _room_search(seed: int):
+    """A room pair's reference map (no tie-break towards the guess), the current scan's
+    points and a guess 0.3 m / 20° off the truth."""
+    rng = np.random.default_rng(seed)
+    ref, cur, true = _room_pair(rng)
+    reference = ReferenceMap(ref, dataclasses.replace(CFG, search_prior_weight=0.0))
+    return reference, cur, true + perturbation(rng, 0.3, 20.0)
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_alternative_is_the_correlative_search_without_the_best(seed):
     """With nothing excluded and no tie-break, the runner-up search is the correlative
     search itself; with the best excluded, it returns a distinct pose whose score is the
     fine field's at that pose."""
-    rng = np.random.default_rng(seed)
-    ref, cur, true = _room_pair(rng)
-    cfg = dataclasses.replace(CFG, search_prior_weight=0.0)
-    reference = ReferenceMap(ref, cfg)
-    guess = true + perturbation(rng, 0.3, 20.0)
+    reference, cur, guess = _room_search(seed)
     best, score = reference.correlative(cur, guess)
     same, same_score = reference.alternative(cur, guess, best, -1.0, -1.0)
     assert np.array_equal(same, best) and same_score == score
@@ -371,3 +376,29 @@ def test_alternative_is_the_correlative_search_without_the_best(seed):
     assert np.array_equal(shared_best, best) and shared_score == score
     shared_alt, shared_alt_score = reference.alternative(cur, guess, best, 0.3, math.radians(5.0), coarse)
     assert np.array_equal(shared_alt, alt) and shared_alt_score == alt_score
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_alternative_lies_outside_the_admitted_region(seed):
+    """A region the match's covariance admits is excluded as the best is: the runner-up
+    then lies beyond it and scores no more than the runner-up that may lie inside it."""
+    from bsslam.se2 import squared_mahalanobis
+
+    reference, cur, guess = _room_search(seed)
+    best, _ = reference.correlative(cur, guess)
+    near, near_score = reference.alternative(cur, guess, best, 0.3, math.radians(5.0))
+    # a region around the best wide enough to hold that runner-up
+    d = near - best
+    d[2] = math.remainder(d[2], 2 * math.pi)
+    covariance = np.diag(np.square(np.maximum(np.abs(d), [0.05, 0.05, 0.01])))
+    bound = 9.0
+    assert squared_mahalanobis(near, best, covariance) <= bound
+    far, far_score = reference.alternative(cur, guess, best, 0.3, math.radians(5.0),
+                                           admitted=(best, np.linalg.inv(covariance), bound))
+    assert squared_mahalanobis(far, best, covariance) > bound and far_score <= near_score
+    oracle = reference.fine.score_poses(cur, far[None, :], np.zeros((1, 2), dtype=np.int64))[0, 0]
+    assert far_score == pytest.approx(float(oracle), abs=1e-6)
+    # an empty region changes nothing
+    same, same_score = reference.alternative(cur, guess, best, 0.3, math.radians(5.0),
+                                             admitted=(best, np.linalg.inv(covariance), -1.0))
+    assert np.array_equal(same, near) and same_score == near_score

@@ -282,6 +282,36 @@ def test_repetitive_rooms_never_match_wrongly():
     assert found == {(0.0, 0.0), (-7.0, 0.0)}, (match.relative, match.alternative)
 
 
+def test_a_rival_the_graph_rules_out_is_held_to_the_looser_ambiguity_bound():
+    """Two identical rooms, a guess near the truth: with a graph covariance that rules the
+    rival out, the match is held to ``loop_max_ambiguity``; with one that admits it, to
+    the stricter ``loop_max_ambiguity_alone``."""
+    room = [_polyline((0, 0), (6, 0), (6, 5)), _polyline((6, 5), (0, 5), (0, 2.5)), _polyline((0, 1.5), (0, 0.2)),
+            _polyline((2, 3), (3.5, 3))]
+    rooms = room + [w + np.array([7.0, 0.0]) for w in room]
+    ref_frame, query_frame = np.array([0.0, 0.0, 0.0]), np.array([9.0, 2.0, 0.4])
+    reference, query = _shape(rooms, -1, 14, ref_frame), _shape(rooms, 6.5, 14, query_frame)
+    truth = between(ref_frame, query_frame)
+    tight = np.diag([0.2 ** 2, 0.2 ** 2, math.radians(5.0) ** 2])        # rivals a metre off ruled out
+    near_guess = compose(truth, np.array([0.3, -0.2, math.radians(2.0)]))
+    loose = dataclasses.replace(CONFIG, loop_max_ambiguity=1.0, loop_max_ambiguity_alone=1.0)
+    seen = match_submaps(reference, query, near_guess, tight, 4.0, math.radians(20.0), loose)
+    assert seen.ok and np.hypot(*(seen.relative - truth)[:2]) < 0.05, seen
+    a = seen.ambiguity
+    assert 0.5 < a <= 1.0
+    split = dataclasses.replace(CONFIG, loop_max_ambiguity=min(a + 0.01, 1.0), loop_max_ambiguity_alone=a - 0.01)
+    told = match_submaps(reference, query, near_guess, tight, 4.0, math.radians(20.0), split)
+    assert told.ok, told
+    # the same guess with a graph covariance that admits the rival: the stricter bound
+    wide = np.diag([5.0 ** 2, 5.0 ** 2, math.radians(10.0) ** 2])
+    seen_wide = match_submaps(reference, query, near_guess, wide, 4.0, math.radians(20.0), loose)
+    assert seen_wide.ok
+    b = seen_wide.ambiguity
+    strict = dataclasses.replace(CONFIG, loop_max_ambiguity=1.0, loop_max_ambiguity_alone=b - 0.01)
+    alone = match_submaps(reference, query, near_guess, wide, 4.0, math.radians(20.0), strict)
+    assert not alone.ok and alone.reason == "ambiguous", alone
+
+
 @settings(max_examples=8, deadline=None)
 @given(st.floats(-2.0, 2.0), st.floats(-2.0, 2.0), st.floats(-0.45, 0.45), st.floats(-0.5, 0.5))
 def test_random_offsets_within_the_window_are_recovered(overlapping, dx, dy, dphi, frame_turn):

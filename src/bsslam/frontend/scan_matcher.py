@@ -516,7 +516,8 @@ class ReferenceMap:
         return best, float(fine[p, t])
 
     def alternative(self, points: np.ndarray, guess: np.ndarray, best: np.ndarray, sep_m: float,
-                    sep_rad: float, coarse: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+                    sep_rad: float, coarse: np.ndarray | None = None,
+                    admitted: tuple[np.ndarray, np.ndarray, float] | None = None) -> tuple[np.ndarray, float]:
         """The runner-up of :meth:`correlative`: the best pose (3,) of the same two-level
         search around ``guess`` among the poses *distinct* from ``best`` (more than
         ``sep_m`` in translation or ``sep_rad`` in heading away), and its fine mean
@@ -525,6 +526,9 @@ class ReferenceMap:
         Scores are raw (without the tie-break towards the guess) so that the ratio to the
         best's score measures ambiguity (repetitive structure), not distance from the guess.
         ``coarse``: :meth:`coarse_scores` of these points and guess, if already computed.
+        ``admitted``: (centre (3,), information (3, 3), bound): poses within that squared
+        Mahalanobis distance of the centre are excluded too (the region a match's own
+        covariance admits: the same answer as the best, not a rival).
         """
         cfg = self.config
         guess = np.asarray(guess, dtype=float)
@@ -535,7 +539,14 @@ class ReferenceMap:
 
         def near(x: np.ndarray, y: np.ndarray, phi: np.ndarray) -> np.ndarray:
             turn = np.abs((phi - best[2] + np.pi) % (2 * np.pi) - np.pi)
-            return (np.hypot(x - best[0], y - best[1]) <= sep_m) & (turn <= sep_rad)
+            out = (np.hypot(x - best[0], y - best[1]) <= sep_m) & (turn <= sep_rad)
+            if admitted is not None:
+                centre, information, bound = admitted
+                d = np.broadcast_arrays(x - centre[0], y - centre[1],
+                                        (phi - centre[2] + np.pi) % (2 * np.pi) - np.pi)
+                q = sum(information[i, j] * d[i] * d[j] for i in range(3) for j in range(3))
+                out = out | (q <= bound)
+            return out
 
         # A coarse pose is knocked out when it is near ``best`` (its fine neighbourhood of
         # ±1 coarse step is masked again below).

@@ -17,10 +17,13 @@ fails):
   ``loop_min_overlap_m`` of wall;
 - ``poor_inlier_fraction``: inliers / overlapping points < ``loop_min_inlier_fraction``;
 - ``degenerate``: the information leaves a direction nearly free (a corridor, an arc);
-- ``ambiguous``: a distinct alignment (``loop_distinct_m`` / ``loop_distinct_rad`` away)
-  within the window scores more than ``loop_max_ambiguity`` × the best (repetitive
-  structure). Only the window is searched: a copy of the structure outside it is not seen,
-  so the window must cover the relative pose's real uncertainty;
+- ``ambiguous``: a distinct alignment (``loop_distinct_m`` / ``loop_distinct_rad`` away,
+  and beyond the 99 % region of the match's own covariance: a slide along a corridor the
+  walls leave free is the same answer) within the window scores more than
+  ``loop_max_ambiguity`` × the best when the pose graph expects the match and not that
+  rival, ``loop_max_ambiguity_alone`` × the best otherwise (repetitive structure). Only
+  the window is searched: a copy of the structure outside it is not seen, so the window
+  must cover the relative pose's real uncertainty;
 - ``incompatible``: the spline associations are not jointly compatible: fewer than two of
   the query's overlapping curves, or fewer than two thirds of them, agree with the
   alignment on their own (a match carried by one wall; a near-symmetric building matched
@@ -151,9 +154,10 @@ class LoopMatch:
             submaps add (:func:`matched_walls_covariance`).
         inlier_fraction: inliers / overlapping query points, in [0, 1].
         overlap_m: length of matched wall (inliers × spacing, m).
-        ambiguity: the best distinct alternative's correlative score / the best's (0 when
-            the window holds no distinct pose; above 1 only when the tie-break towards the
-            guess chose the lower of two near-equal peaks).
+        ambiguity: the best distinct alternative's (``alternative``'s) correlative score /
+            the best's (0 when the window holds no distinct pose beyond the match's
+            covariance region; above 1 only when the tie-break towards the guess chose the
+            lower of two near-equal peaks).
         information_ratio: smallest / largest eigenvalue of the scaled information.
         curves_overlapping: query curves with at least :data:`MIN_CURVE_OVERLAP_M` of overlap.
         curves_agreeing: of which those that agree with the alignment on their own.
@@ -271,14 +275,15 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
     agree = voting & (in_c >= config.loop_min_inlier_fraction * over_c)
     n_voting, n_agree = int(np.count_nonzero(voting)), int(np.count_nonzero(agree))
 
-    alternative, alt_score = ref.alternative(search, guess, start, config.loop_distinct_m, config.loop_distinct_rad,
-                                             coarse)
-    ambiguity = alt_score / correlation if correlation > 0 else 1.0
+    # The rival is sought beyond the region the match's covariance admits: an alignment
+    # inside it (a slide along a corridor) is the same answer, and taking it as the rival
+    # would hide a farther copy (the next bay of a facade) behind it.
+    admitted = None
     if np.all(np.isfinite(covariance)):
-        # a rival the match's covariance admits (sliding along a corridor it leaves free)
-        # is the same answer, not an ambiguity
-        if squared_mahalanobis(alternative, pose, covariance) <= _ADMITTED_CHI2:
-            ambiguity = 0.0
+        admitted = (pose, np.linalg.inv(covariance), _ADMITTED_CHI2)
+    alternative, alt_score = ref.alternative(search, guess, start, config.loop_distinct_m, config.loop_distinct_rad,
+                                             coarse, admitted)
+    ambiguity = alt_score / correlation if correlation > 0 else 1.0
 
     result = dict(inlier_fraction=fraction, overlap_m=overlap_m, ambiguity=ambiguity, information_ratio=info_ratio,
                   curves_overlapping=n_voting, curves_agreeing=n_agree, correlation=correlation,
@@ -289,7 +294,11 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
         return reject("poor_inlier_fraction", pose, **result)
     if info_ratio < config.loop_min_information_ratio or not np.all(np.isfinite(covariance)):
         return reject("degenerate", pose, **result)
-    if ambiguity > config.loop_max_ambiguity:
+    # the graph tells the match from its rival when it expects the one and not the other;
+    # otherwise the walls alone must
+    told = (squared_mahalanobis(pose, guess, guess_covariance) <= _ADMITTED_CHI2
+            < squared_mahalanobis(alternative, guess, guess_covariance))
+    if ambiguity > (config.loop_max_ambiguity if told else config.loop_max_ambiguity_alone):
         return reject("ambiguous", pose, **result)
     if n_agree < 2 or n_agree < MIN_AGREEING_FRACTION * n_voting:
         return reject("incompatible", pose, **result)
