@@ -541,11 +541,14 @@ class ReferenceMap:
             turn = np.abs((phi - best[2] + np.pi) % (2 * np.pi) - np.pi)
             out = (np.hypot(x - best[0], y - best[1]) <= sep_m) & (turn <= sep_rad)
             if admitted is not None:
-                centre, information, bound = admitted
-                d = np.broadcast_arrays(x - centre[0], y - centre[1],
-                                        (phi - centre[2] + np.pi) % (2 * np.pi) - np.pi)
-                q = sum(information[i, j] * d[i] * d[j] for i in range(3) for j in range(3))
-                out = out | (q <= bound)
+                centre, a, bound = admitted
+                dx, dy = x - centre[0], y - centre[1]
+                dphi = (phi - centre[2] + np.pi) % (2 * np.pi) - np.pi
+                # dᵀ A d grouped so that the xy terms are computed on the offsets alone and
+                # only two products span the whole (rotations × offsets) grid
+                xy = a[0, 0] * dx * dx + (a[0, 1] + a[1, 0]) * dx * dy + a[1, 1] * dy * dy
+                cross = (a[0, 2] + a[2, 0]) * dx + (a[1, 2] + a[2, 1]) * dy
+                out = out | (xy + dphi * (cross + a[2, 2] * dphi) <= bound)
             return out
 
         # A coarse pose is knocked out when it is near ``best`` (its fine neighbourhood of
