@@ -35,7 +35,7 @@ SAME_FILES = ("trajectory.tum", "trajectory_online.tum", "map.json", "pose_covar
               "pose_covariance_online.csv", "odometry.tum", "frontend.tum", "grid.pgm", "map.geojson",
               "map_metric.svg", "config.yaml")
 #: Summary entries that are wall times or about the checkpoints, not results.
-NOT_RESULTS = ("wall_time_s", "relocalize_time_s", "ms_per_step", "checkpoints", "checkpoint_mb",
+NOT_RESULTS = ("wall_time_s", "relocalize_time_s", "loop_sweep_time_s", "ms_per_step", "checkpoints", "checkpoint_mb",
                "checkpoint_write_s", "resumed_at_frame", "frontend_in_helper")
 
 

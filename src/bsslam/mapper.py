@@ -64,9 +64,11 @@ class RunResult:
             when the front end is off.
         ground_truth: the dataset's reference, if it has one.
         map: the final map splines with their covariance blocks.
-        wall_time_s: time spent in this process on the scans (s), both passes, excluding
-            reading the input.
+        wall_time_s: time spent in this process on the scans (s), both passes and the
+            sweep between them, excluding reading the input.
         relocalize_time_s: of which the second pass (s).
+        sweep_time_s: … and the submap backend's end-of-run loop-closure sweep (s;
+            :meth:`~bsslam.submaps.SubmapSLAM.sweep_loops`).
         step_times_s: (N,) time spent on each scan (s): front end and, where it ran, filter;
             the front end not included on the scans it matched in a helper process
             (``totals["frontend_in_helper"]`` counts them).
@@ -102,6 +104,7 @@ class RunResult:
     scans: list = field(default_factory=list)
 
     relocalize_time_s: float = 0.0
+    sweep_time_s: float = 0.0
     interrupted: bool = False
     stop_reason: str | None = None
     submaps: SubmapSLAM | None = None
@@ -451,6 +454,7 @@ class Mapper:
             for key, count in r.counts.items():
                 totals[key] = totals.get(key, 0) + count
         submaps = self._slam if isinstance(self._slam, SubmapSLAM) else None
+        sweep_time = 0.0
         if submaps is not None and not interrupted:
             t0 = time.perf_counter()
             with one_blas_thread():
@@ -458,6 +462,13 @@ class Mapper:
             if records:      # counted as the last scan's time: it is part of the first pass
                 records[-1] = dataclasses.replace(records[-1], step_time_s=records[-1].step_time_s
                                                   + time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            try:
+                with one_blas_thread():
+                    submaps.sweep_loops()    # end-of-run work, like the second pass: not a scan's
+            except KeyboardInterrupt:
+                interrupted = True
+            sweep_time = time.perf_counter() - t0
         if submaps is not None:
             _add_submap_stats(totals, submaps)
         final_map = self.map
@@ -481,7 +492,8 @@ class Mapper:
         result = RunResult(
             name=name, estimate=estimate, relocalized=relocalized, odometry=odometry, frontend=frontend,
             ground_truth=ground_truth, map=final_map,
-            wall_time_s=float(np.sum(step_times)) + relocalize_time, relocalize_time_s=relocalize_time,
+            wall_time_s=float(np.sum(step_times)) + sweep_time + relocalize_time, relocalize_time_s=relocalize_time,
+            sweep_time_s=sweep_time,
             step_times_s=step_times, state_sizes=np.array([r.state_size for r in records], dtype=int),
             totals=totals, nis=np.array([r.nis for r in records]),
             nis_dof=np.array([r.nis_dof for r in records], dtype=int),
@@ -579,6 +591,8 @@ def _add_submap_stats(totals: dict[str, int], slam: SubmapSLAM) -> None:
     totals["submaps"] = len(slam.frozen) + (1 if slam.local.steps > slam._seed_steps else 0)
     totals["loop_candidates"] = stats.loop_candidates
     totals["loop_closures"] = stats.loop_closures
+    totals["loop_sweep_candidates"] = stats.sweep_candidates
+    totals["loop_sweep_closures"] = stats.sweep_closures
     totals["loop_closures_downweighted"] = int(np.count_nonzero(slam.loop_weights() < 0.5))
     for reason, count in stats.loop_rejections.items():
         totals[f"loop_rejected_{reason}"] = count

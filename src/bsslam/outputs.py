@@ -50,6 +50,7 @@ def summarize(result: RunResult, reference: Trajectory | None = None, exact_refe
         "scans": result.steps,
         "wall_time_s": round(result.wall_time_s, 3),
         "relocalize_time_s": round(result.relocalize_time_s, 3),
+        "loop_sweep_time_s": round(result.sweep_time_s, 3),
         "ms_per_step": round(1000.0 * result.wall_time_s / max(result.steps, 1), 3),
         "splines": len(result.map),
         "control_points": int(n_cp),

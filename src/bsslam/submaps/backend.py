@@ -35,6 +35,8 @@ counts them and a run past ``max_memory_mb`` stops with :class:`MemoryBudgetErro
 from __future__ import annotations
 
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -48,9 +50,12 @@ from bsslam.slam import MapSpline, SplineSLAM
 from bsslam.slam.features import SplineFeature
 from bsslam.slam.filter import StepReport
 from bsslam.spline import BSplineCurve
-from bsslam.submaps.loop_closure import SubmapShape, match_submaps
+from bsslam.submaps.loop_closure import LoopMatch, SubmapShape, match_submaps
 from bsslam.submaps.loop_support import CONSISTENT_CHI2, LoopEdge, votes
 from bsslam.submaps.pose_graph import PoseGraph
+
+#: Threads matching the end-of-run sweep's pairs (at most the machine's cores).
+_SWEEP_THREADS = 4
 
 #: Prior σ on the first base pose when the configuration gives none: the map frame is
 #: defined by it, but the optimiser needs a proper (invertible) prior.
@@ -111,11 +116,15 @@ class LoopRecord:
 
 @dataclass
 class SubmapStats:
-    """Counters of the global layer (added to a run's totals)."""
+    """Counters of the global layer (added to a run's totals): ``loop_closures`` counts
+    the end-of-run sweep's (``sweep_closures``) too; ``loop_candidates`` and
+    ``loop_rejections`` are the online matching's."""
 
     submaps: int = 1
     loop_candidates: int = 0
     loop_closures: int = 0
+    sweep_candidates: int = 0
+    sweep_closures: int = 0
     loop_rejections: dict[str, int] = field(default_factory=dict)
 
 
@@ -234,8 +243,8 @@ class SubmapSLAM:
         return report
 
     def finish(self) -> None:
-        """Freeze the last submap (its loop closures found) so the map and bases are final;
-        call once, at the end of a run. Further steps start a new submap."""
+        """Freeze the last submap (its loop closures found); call once, at the end of a
+        run, then :meth:`sweep_loops`. Further steps start a new submap."""
         if self._local.steps > self._seed_steps:
             self._freeze()
         self._expire_pending(self.submap_index + self.config.submaps.loop_support_submaps)
@@ -294,13 +303,10 @@ class SubmapSLAM:
             if tried == cfg.loop_max_candidates or gap[j] > cfg.loop_max_window_m:
                 break
             guess, cov = self.graph.relative(int(j), k)
-            sigma_xy = math.sqrt(max(cov[0, 0], cov[1, 1]))
-            window_m = min(max(cfg.loop_sigmas * sigma_xy, cfg.loop_min_window_m), cfg.loop_max_window_m)
+            window_m, window_rad = search_window(cov, cfg)
             if gap[j] > window_m:     # cannot overlap anywhere in the search window
                 continue
             tried += 1
-            window_rad = min(max(cfg.loop_sigmas * math.sqrt(cov[2, 2]), cfg.loop_min_window_rad),
-                             cfg.loop_max_window_rad)
             self.stats.loop_candidates += 1
             match = match_submaps(self.frozen[j].shape, query, guess, cov, window_m, window_rad, cfg)
             if not match.ok:
@@ -309,10 +315,66 @@ class SubmapSLAM:
             # a match beyond the graph's 99 % region claims drift the graph does not expect
             # (read only by the vote between matches)
             surprising = cfg.loop_support_submaps > 0 and _surprising(match.relative, guess, cov)
-            rival = match.alternative.copy() if match.ambiguity > 0 else None
-            found.append((LoopRecord(int(j), k, match.relative, match.covariance, match.inlier_fraction,
-                                     match.overlap_m, rival=rival), window_m, surprising))
+            found.append((_record(int(j), k, match), window_m, surprising))
         return self._admit(k, found)
+
+    def sweep_loops(self) -> int:
+        """Match each frozen submap again against the older ones whose areas overlap it
+        where the graph now puts them and that no loop closure ties to it
+        (``submaps.loop_sweep``): up to ``loop_max_candidates`` of them, the most
+        overlapping first, each with the graph's guess and window; add the verified
+        matches and solve once (the optimiser's guard against wrong loop closures
+        classifies them with the rest).
+
+        A newly frozen submap was matched once, against the graph as it then stood: a
+        guess the later loop closures moved, a window as wide as the drift then. At the end
+        the graph is as sure as it gets, so a match the checks refused then (ambiguous in
+        the wide window, or not found) may now pass. The vote between neighbouring matches
+        (``loop_support_submaps``) is not held: there are no later submaps to vote.
+
+        Call once, after :meth:`finish`. Returns the number of loop closures added (the
+        matches collected first, so an interrupt while matching leaves the graph as it was)."""
+        cfg = self.config.submaps
+        n = len(self.frozen)
+        if not cfg.loop_sweep or cfg.loop_max_candidates == 0 or n < 3:
+            return 0
+        tied = {(r.reference, r.query) for r in self.loops}
+        centres = np.array([compose(self._bases[f.index], np.r_[f.shape.center, 0.0])[:2] for f in self.frozen])
+        radii = np.array([f.shape.radius for f in self.frozen])
+        jobs = []    # (reference, query, guess, its covariance, window m, window rad)
+        for k in range(2, n):
+            if self.frozen[k].shape.points.shape[0] == 0:
+                continue
+            gap = np.hypot(*(centres[:k - 1] - centres[k]).T) - radii[:k - 1] - radii[k]   # < 0: overlap
+            untied = [int(j) for j in np.argsort(gap, kind="stable")
+                      if gap[j] <= 0 and (int(j), k) not in tied and self.frozen[j].shape.points.shape[0]]
+            # as many as the online matching tries, the most overlapping first: the cost
+            # stays that of the online matching
+            for j in untied[:cfg.loop_max_candidates]:
+                guess, cov = self.graph.relative(j, k)      # GTSAM: from this thread only
+                jobs.append((j, k, guess, cov, *search_window(cov, cfg)))
+        self.stats.sweep_candidates += len(jobs)
+
+        def match(job):
+            j, k, guess, cov, window_m, window_rad = job
+            return match_submaps(self.frozen[j].shape, self.frozen[k].shape, guess, cov, window_m, window_rad, cfg)
+
+        # The matches are independent and their kernels release the GIL; map keeps the
+        # jobs' order, so the result does not depend on the threads.
+        with ThreadPoolExecutor(max_workers=min(_SWEEP_THREADS, os.cpu_count() or 1)) as pool:
+            matches = list(pool.map(match, jobs))
+        added = [(_record(job[0], job[1], m), job[4]) for job, m in zip(jobs, matches) if m.ok]
+        for record, window_m in added:
+            loop_id = self.graph.add_loop(record.reference, record.query, record.relative,
+                                          _proper(record.covariance, window_m))
+            self.loops.append(replace(record, loop_id=loop_id))
+        self.stats.sweep_closures = len(added)
+        self.stats.loop_closures += len(added)
+        if added:
+            self._drop_loops(self.graph.optimize())
+            self._bases = self.graph.poses()
+            self._base_cov = self.graph.covariance(self.submap_index)
+        return len(added)
 
     def _admit(self, k: int, found: list[tuple[LoopRecord, float, bool]]) -> bool:
         """Add to the graph the verified matches (``found``: those of query ``k``, and
@@ -498,6 +560,24 @@ def _surprising(relative: np.ndarray, guess: np.ndarray, covariance: np.ndarray)
     """``relative`` (3,) lies beyond the 99 % region of the graph's ``guess`` (3,) with
     ``covariance`` (3, 3)."""
     return not squared_mahalanobis(relative, guess, _proper(covariance)) <= CONSISTENT_CHI2
+
+
+def search_window(covariance: np.ndarray, config: SubmapConfig) -> tuple[float, float]:
+    """The loop-closure search's half-widths (m, rad) for a relative pose with
+    ``covariance`` (3, 3): ``loop_sigmas`` σ of its larger position σ and of its heading,
+    clipped to the configured bounds."""
+    sigma_xy = math.sqrt(max(covariance[0, 0], covariance[1, 1]))
+    window_m = min(max(config.loop_sigmas * sigma_xy, config.loop_min_window_m), config.loop_max_window_m)
+    window_rad = min(max(config.loop_sigmas * math.sqrt(covariance[2, 2]), config.loop_min_window_rad),
+                     config.loop_max_window_rad)
+    return window_m, window_rad
+
+
+def _record(reference: int, query: int, match: LoopMatch) -> LoopRecord:
+    """A verified match as a loop record (not yet in the graph), its rival kept for the vote."""
+    rival = match.alternative.copy() if match.ambiguity > 0 else None
+    return LoopRecord(reference, query, match.relative, match.covariance, match.inlier_fraction, match.overlap_m,
+                      rival=rival)
 
 
 def _edge(record: LoopRecord) -> LoopEdge:
