@@ -94,7 +94,6 @@ def test_the_final_pose_is_within_its_covariance_on_other_noise_draws(seed):
     assert nees < chi2.ppf(0.9973, 3), nees
 
 
-
 def _true_bases(data, result) -> list[np.ndarray]:
     """Each submap's true base pose: the true pose of the scan that ended the one before."""
     gt, sub = data.ground_truth.poses, result.step_submaps
@@ -103,8 +102,9 @@ def _true_bases(data, result) -> list[np.ndarray]:
 
 def test_the_end_of_run_sweep_adds_the_loop_closures_the_online_matching_missed():
     """With one candidate per newly frozen submap the online matching ties few pairs of the
-    double loop's submaps; the sweep at the end (``loop_sweep``) matches every pair whose
-    areas overlap against the final graph and adds the verified matches: each within its
+    double loop's submaps; the sweep at the end (``loop_sweep``) matches each submap again,
+    against as many older ones it overlaps and is not tied to, with the final graph's
+    guess and window, and adds the verified matches: each within its
     own covariance of the truth (χ²(3) at 99.9 %), no pair tied twice, the online ones
     kept, and the final pose within 3σ. Without the sweep the loop closures are the online
     ones alone."""
@@ -129,6 +129,7 @@ def test_the_end_of_run_sweep_adds_the_loop_closures_the_online_matching_missed(
         error[2] = np.remainder(error[2] + np.pi, 2 * np.pi) - np.pi
         assert error @ np.linalg.solve(loop.covariance, error) < chi2.ppf(0.999, 3), (loop, error)
     assert _final_pose_nees(swept, data.ground_truth) < chi2.ppf(0.9973, 3)
+
 
 def test_live_memory_is_counted_and_within_the_budget(double_loop):
     """The live bytes are the local filter's buffers plus the frozen submaps' arrays; the

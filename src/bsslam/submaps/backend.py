@@ -291,11 +291,7 @@ class SubmapSLAM:
         query = self.frozen[k].shape
         if cfg.loop_max_candidates == 0 or k < 2 or query.points.shape[0] == 0:
             return False
-        centres = np.array([compose(self._bases[f.index], np.r_[f.shape.center, 0.0])[:2]
-                            for f in self.frozen[:k - 1]])
-        radii = np.array([f.shape.radius for f in self.frozen[:k - 1]])
-        here = compose(self._bases[k], np.r_[query.center, 0.0])[:2]
-        gap = np.hypot(*(centres - here).T) - radii - query.radius   # < 0: the areas overlap
+        gap = _gaps(*self._areas(), k)
         order = np.argsort(gap, kind="stable")
         found: list[tuple[LoopRecord, float, bool]] = []
         tried = 0
@@ -339,13 +335,12 @@ class SubmapSLAM:
         if not cfg.loop_sweep or cfg.loop_max_candidates == 0 or n < 3:
             return 0
         tied = {(r.reference, r.query) for r in self.loops}
-        centres = np.array([compose(self._bases[f.index], np.r_[f.shape.center, 0.0])[:2] for f in self.frozen])
-        radii = np.array([f.shape.radius for f in self.frozen])
+        centres, radii = self._areas()
         jobs = []    # (reference, query, guess, its covariance, window m, window rad)
         for k in range(2, n):
             if self.frozen[k].shape.points.shape[0] == 0:
                 continue
-            gap = np.hypot(*(centres[:k - 1] - centres[k]).T) - radii[:k - 1] - radii[k]   # < 0: overlap
+            gap = _gaps(centres, radii, k)
             untied = [int(j) for j in np.argsort(gap, kind="stable")
                       if gap[j] <= 0 and (int(j), k) not in tied and self.frozen[j].shape.points.shape[0]]
             # as many as the online matching tries, the most overlapping first: the cost
@@ -368,13 +363,20 @@ class SubmapSLAM:
             loop_id = self.graph.add_loop(record.reference, record.query, record.relative,
                                           _proper(record.covariance, window_m))
             self.loops.append(replace(record, loop_id=loop_id))
-        self.stats.sweep_closures = len(added)
         self.stats.loop_closures += len(added)
+        dropped = self.graph.optimize() if added else []
+        self._drop_loops(dropped)       # only ever the ones just added
         if added:
-            self._drop_loops(self.graph.optimize())
             self._bases = self.graph.poses()
             self._base_cov = self.graph.covariance(self.submap_index)
-        return len(added)
+        self.stats.sweep_closures = len(added) - len(dropped)
+        return self.stats.sweep_closures
+
+    def _areas(self) -> tuple[np.ndarray, np.ndarray]:
+        """(n, 2) the centres of the frozen submaps' matching points in the map frame (m,
+        at their bases as last optimised) and (n,) the radii of circles around them (m)."""
+        centres = np.array([compose(self._bases[f.index], np.r_[f.shape.center, 0.0])[:2] for f in self.frozen])
+        return centres.reshape(-1, 2), np.array([f.shape.radius for f in self.frozen])
 
     def _admit(self, k: int, found: list[tuple[LoopRecord, float, bool]]) -> bool:
         """Add to the graph the verified matches (``found``: those of query ``k``, and
@@ -560,6 +562,13 @@ def _surprising(relative: np.ndarray, guess: np.ndarray, covariance: np.ndarray)
     """``relative`` (3,) lies beyond the 99 % region of the graph's ``guess`` (3,) with
     ``covariance`` (3, 3)."""
     return not squared_mahalanobis(relative, guess, _proper(covariance)) <= CONSISTENT_CHI2
+
+
+def _gaps(centres: np.ndarray, radii: np.ndarray, k: int) -> np.ndarray:
+    """(k − 1,) the gaps (m) between the area of submap ``k`` and those of submaps
+    0 … k − 2 (not its neighbour, tied to it by the odometry constraint), from
+    :meth:`SubmapSLAM._areas`; below 0 the areas overlap."""
+    return np.hypot(*(centres[:k - 1] - centres[k]).T) - radii[:k - 1] - radii[k]
 
 
 def search_window(covariance: np.ndarray, config: SubmapConfig) -> tuple[float, float]:
