@@ -165,6 +165,9 @@ def test_a_call_runs_in_the_helper_and_raises_its_error_here():
         here = []
         assert helper.call(lambda: here.append(1) or len(here))() == 1   # a lambda does not pickle: run here
         assert helper.call(operator.mul, 6, 7)() == 42                   # and the helper still takes calls
+        failing = helper.call(lambda: int("run here"))    # run here, and it fails: its own error, later
+        with pytest.raises(ValueError, match="run here"):
+            failing()
 
 
 class _Unpicklable:

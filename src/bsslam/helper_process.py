@@ -188,8 +188,8 @@ class HelperProcess:
         try:
             value = fn(*args, **kwargs)
         except BaseException as exc:
-            def fail():
-                raise exc
+            def fail(error: BaseException = exc):    # bound now: the name is gone after the except
+                raise error
             return fail
         return lambda: value
 
