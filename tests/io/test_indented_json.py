@@ -11,7 +11,7 @@ DOCUMENTS = [
     {"a": [1.0, 2.5e-300, -0.0, 1e22, 0.1], "b": {"c": [], "d": {}, "e": None, "f": True, "g": 'héllo\n"x',
                                                 "h": [[1.0, 2.0], [3, 4]], "i": [1, 2.0], "j": [True, False],
                                                 "k": (1.5,), "l": [None, "s", 1.0]},
-     1: 2, 2.5: 3, None: 4, True: 5},
+     1: 2, 2.5: 3, None: 4, False: 5},
     [], {}, 1.5, -7, "x", None, [[[]]], [{}], [[], {}],
     np.random.default_rng(0).normal(size=(5, 3)).tolist(),
     {"subclass": [np.float64(1.25), 2.0], "ints": [np.int64(3).item(), 2]},

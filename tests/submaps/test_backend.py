@@ -12,7 +12,6 @@ import pytest
 from scipy.stats import chi2
 
 from bsslam.config import SLAMConfig, SubmapConfig
-from bsslam.errors import MemoryBudgetError
 from bsslam.experiments.consistency import simulation_config
 from bsslam.mapper import Mapper
 from bsslam.pipeline import run_dataset
