@@ -45,13 +45,13 @@ from scipy.spatial import cKDTree
 from bsslam.config import SLAMConfig, SubmapConfig
 from bsslam.errors import MemoryBudgetError
 from bsslam.scan import LaserScan
-from bsslam.se2 import between, compose, compose_with_covariance, squared_mahalanobis
+from bsslam.se2 import compose, compose_with_covariance
 from bsslam.slam import MapSpline, SplineSLAM
 from bsslam.slam.features import SplineFeature
 from bsslam.slam.filter import StepReport
 from bsslam.spline import BSplineCurve
 from bsslam.submaps.loop_closure import LoopMatch, SubmapShape, match_submaps
-from bsslam.submaps.loop_support import CONSISTENT_CHI2, LoopEdge, votes
+from bsslam.submaps.loop_support import LoopEdge, votes
 from bsslam.submaps.pose_graph import PoseGraph
 
 #: Threads matching the end-of-run sweep's pairs (at most the machine's cores).
@@ -310,7 +310,7 @@ class SubmapSLAM:
                 continue
             # a match beyond the graph's 99 % region claims drift the graph does not expect
             # (read only by the vote between matches)
-            surprising = cfg.loop_support_submaps > 0 and _surprising(match.relative, guess, cov)
+            surprising = cfg.loop_support_submaps > 0 and not match.expected
             found.append((_record(int(j), k, match), window_m, surprising))
         return self._admit(k, found)
 
@@ -494,7 +494,7 @@ def carry_over(previous: SplineSLAM, local: SplineSLAM, radius_m: float, max_sta
     x = previous.state.x[idx[3:]]
     c, s = math.cos(pose[2]), math.sin(pose[2])
     # x holds, per spline, its n x-coordinates then its n y-coordinates
-    xs, ys, blocks = [], [], []
+    xs, ys = [], []
     start = 0
     for f in near:
         n = f.idx_x.shape[0]
@@ -556,12 +556,6 @@ def matching_shape(splines: list[MapSpline], config: SubmapConfig) -> SubmapShap
     sure = [i for i, sigma in enumerate(sigmas) if limit == 0 or sigma <= limit]
     return SubmapShape.from_curves([splines[i].curve for i in sure], config.point_spacing_m,
                                    [sigmas[i] for i in sure])
-
-
-def _surprising(relative: np.ndarray, guess: np.ndarray, covariance: np.ndarray) -> bool:
-    """``relative`` (3,) lies beyond the 99 % region of the graph's ``guess`` (3,) with
-    ``covariance`` (3, 3)."""
-    return not squared_mahalanobis(relative, guess, _proper(covariance)) <= CONSISTENT_CHI2
 
 
 def _gaps(centres: np.ndarray, radii: np.ndarray, k: int) -> np.ndarray:

@@ -163,6 +163,8 @@ class LoopMatch:
         curves_agreeing: of which those that agree with the alignment on their own.
         correlation: the best fine correlative score (mean likelihood, in [0, 1]).
         alternative: (3,) the best distinct alternative alignment.
+        expected: the alignment lies within the 99 % region of the guess under its
+            covariance (the pose graph expects it); False when no alignment was computed.
     """
 
     ok: bool
@@ -177,6 +179,7 @@ class LoopMatch:
     curves_agreeing: int = 0
     correlation: float = 0.0
     alternative: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    expected: bool = False
 
 
 def matcher_config(window_m: float, window_rad: float, config: SubmapConfig,
@@ -285,9 +288,10 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
                                              coarse, admitted)
     ambiguity = alt_score / correlation if correlation > 0 else 1.0
 
+    expected = squared_mahalanobis(pose, guess, guess_covariance) <= _ADMITTED_CHI2
     result = dict(inlier_fraction=fraction, overlap_m=overlap_m, ambiguity=ambiguity, information_ratio=info_ratio,
                   curves_overlapping=n_voting, curves_agreeing=n_agree, correlation=correlation,
-                  alternative=alternative)
+                  alternative=alternative, expected=expected)
     if overlap_m < config.loop_min_overlap_m:
         return reject("too_little_overlap", pose, **result)
     if fraction < config.loop_min_inlier_fraction:
@@ -296,8 +300,7 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
         return reject("degenerate", pose, **result)
     # the graph tells the match from its rival when it expects the one and not the other;
     # otherwise the walls alone must
-    told = (squared_mahalanobis(pose, guess, guess_covariance) <= _ADMITTED_CHI2
-            < squared_mahalanobis(alternative, guess, guess_covariance))
+    told = expected and squared_mahalanobis(alternative, guess, guess_covariance) > _ADMITTED_CHI2
     if ambiguity > (config.loop_max_ambiguity if told else config.loop_max_ambiguity_alone):
         return reject("ambiguous", pose, **result)
     if n_agree < 2 or n_agree < MIN_AGREEING_FRACTION * n_voting:
