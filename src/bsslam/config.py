@@ -457,6 +457,13 @@ class FrontendConfig:
             a + b·|Δφ| + c·|Δ| (rad, rad/rad, rad/m). Wide: the real wheel odometry of the
             1 Hz Intel log is off by up to ~20° in one step. The same form as the filter's
             ``motion`` model but not its values (see :class:`MotionNoiseConfig` for why).
+        odometry_learned_window: how well the odometry's translation actually agrees with
+            the scan matches is measured over the last this-many well-constrained trusted
+            matches (the median of the squared disagreement, forward and sideways, in σ of
+            the model above); a degenerate match (see ``degenerate_ratio``) is refined with
+            that σ instead of the model's, so that where the wheels are good a corridor's
+            weak direction comes from them rather than from the scan's few features along
+            it (:meth:`bsslam.frontend.LaserOdometry.odometry_scale`). 0: the model's σ.
 
     Trust
         min_points: fewer valid points in the scan or in the reference → fall back.
@@ -464,7 +471,9 @@ class FrontendConfig:
             is rejected → fall back.
         degenerate_ratio: when the smallest eigenvalue of the translation information is
             below this fraction of the largest, the match is flagged degenerate (a
-            corridor); its weak direction then comes from the odometry prior.
+            corridor); its weak direction then comes from the odometry prior, with the σ
+            learned from the matches (``odometry_learned_window``), blended towards the
+            model's as the ratio goes up to twice this.
         odometry_gate: a match whose increment lies beyond this probability region of
             the odometry increment (χ²₃ with both covariances: the odometry model's and
             the match's) is rejected → fall back, as the filter gates an observation
@@ -526,6 +535,7 @@ class FrontendConfig:
     degenerate_ratio: float = 0.02
     odometry_gate: float = 0.99
     odometry_gate_steps: int = 2
+    odometry_learned_window: int = 200
 
     def __post_init__(self) -> None:
         positive = ("max_range_m", "scan_voxel_m", "submap_voxel_m", "search_window_m", "search_window_rad",
@@ -570,6 +580,8 @@ class FrontendConfig:
         _check(0 < self.odometry_gate <= 1, "frontend.odometry_gate must be in (0, 1]")
         _check(isinstance(self.odometry_gate_steps, int) and 1 <= self.odometry_gate_steps <= 10,
                "frontend.odometry_gate_steps must be an integer in [1, 10]")
+        _check(isinstance(self.odometry_learned_window, int) and 0 <= self.odometry_learned_window <= 100_000,
+               "frontend.odometry_learned_window must be an integer in [0, 100000]")
         _check(self.max_range_m <= MAX_LASER_RANGE_M,
                f"frontend.max_range_m must be ≤ {MAX_LASER_RANGE_M:g} m (2D laser scanners reach ~80 m)")
         _check(self.search_window_m <= MAX_SEARCH_WINDOW_M,

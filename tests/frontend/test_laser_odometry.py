@@ -183,8 +183,8 @@ def test_a_match_far_from_the_odometry_falls_back_to_it(monkeypatch):
     frames = list(data)
     real_match = ReferenceMap.match
 
-    def turned(self, points, guess, prior_covariance=None):
-        result = real_match(self, points, guess, prior_covariance)
+    def turned(self, points, guess, prior_covariance=None, weak_prior_covariance=None):
+        result = real_match(self, points, guess, prior_covariance, weak_prior_covariance)
         return replace(result, pose=result.pose + np.array([0.0, 0.0, math.radians(40.0)]))
 
     monkeypatch.setattr(ReferenceMap, "match", turned)
@@ -244,9 +244,9 @@ def test_a_match_wrong_on_its_own_step_is_not_let_in_by_the_window(monkeypatch):
     real_match = ReferenceMap.match
     count = []
 
-    def turned_second(self, points, guess, prior_covariance=None):
+    def turned_second(self, points, guess, prior_covariance=None, weak_prior_covariance=None):
         count.append(1)
-        result = real_match(self, points, guess, prior_covariance)
+        result = real_match(self, points, guess, prior_covariance, weak_prior_covariance)
         if len(count) == 2:
             result = replace(result, pose=result.pose + np.array([0.0, 0.0, math.radians(40.0)]))
         return result
@@ -299,3 +299,33 @@ def test_the_gate_over_steps_is_the_chi2_test_of_the_composed_increments():
     assert 0 < sum(decided) < len(decided)
     lo._recent.clear()
     assert not lo._agrees_over_steps(np.zeros(3), np.eye(3), np.zeros(3), np.eye(3))   # no window: no second chance
+
+
+@pytest.mark.parametrize("noise", [1.0, 3.0])
+def test_the_odometry_sigma_learned_from_the_matches_is_the_simulated_one(noise):
+    """The simulator draws each odometry component with σ = a + b·|Δ| of its own motion
+    (forward: 1 mm + 10 % of the step, × ``noise``; sideways a millimetre or so); the front
+    end's model says 5 cm + 20 % of the whole step for both. The factor it learns on the
+    model's forward σ is the simulator's σ over the model's (the oracle, from the true
+    increments) within 20 %; the sideways one, far below the model's, sits at its floor."""
+    motion = MotionNoiseConfig()
+    motion = replace(motion, a_xy_m=noise * motion.a_xy_m, b_xy=noise * motion.b_xy)
+    data = simulate(get_world("mixed"), SimConfig(sigma_range_m=0.01, motion=motion), seed=4, steps=150)
+    cfg = FrontendConfig()
+    lo, _ = _run(list(data), cfg)
+    true = between(data.ground_truth.poses[:-1], data.ground_truth.poses[1:])
+    model = cfg.odom_sigma_xy_m + cfg.odom_sigma_xy_per_m * np.hypot(true[:, 0], true[:, 1])
+    oracle = float(np.median((motion.a_xy_m + motion.b_xy * np.abs(true[:, 0])) / model))
+    scale = lo.odometry_scale()
+    assert scale is not None and scale[2] == 1.0
+    assert abs(scale[0] / oracle - 1.0) < 0.2, (scale, oracle)
+    assert scale[1] == pytest.approx(0.1)
+    # not learning: the model's σ throughout
+    off, _ = _run(list(data), replace(cfg, odometry_learned_window=0))
+    assert off.odometry_scale() is None
+
+
+def test_the_learned_sigma_waits_for_enough_matches():
+    data = simulate(get_world("mixed"), SimConfig(), seed=0, steps=15)
+    lo, _ = _run(list(data))
+    assert lo.stats.matched == 14 and lo.odometry_scale() is None

@@ -99,13 +99,19 @@ def test_default_covariance_is_not_overconfident():
     assert np.all(nees < chi2.ppf(0.999, 3))
 
 
-def test_corridor_is_flagged_degenerate_and_keeps_the_guess_along_it():
+def _corridor_pair():
+    """Reference and current scans (robot frame) down the long corridor, the pose of the
+    reference's (along world x), and the true relative pose."""
     rng = np.random.default_rng(3)
     walls = corridor()
     a, b = np.array([0.0, 0.1, 0.05]), np.array([0.5, 0.0, 0.15])
     ref = scan_points(cast_scan(walls, a, rng, 0.005, max_range=8.0), None, CFG)
     cur = scan_points(cast_scan(walls, b, rng, 0.005, max_range=8.0), None, CFG)
-    true = between(a, b)
+    return ref, cur, a, between(a, b)
+
+
+def test_corridor_is_flagged_degenerate_and_keeps_the_guess_along_it():
+    ref, cur, a, true = _corridor_pair()
     guess = true + np.array([0.2, 0.1, math.radians(5.0)])
     prior = np.diag([0.1 ** 2, 0.1 ** 2, math.radians(5.0) ** 2])
     result = ReferenceMap(ref).match(cur, guess, prior)
@@ -121,6 +127,61 @@ def test_corridor_is_flagged_degenerate_and_keeps_the_guess_along_it():
     sigma_along = math.sqrt(along @ result.covariance[:2, :2] @ along)
     sigma_across = math.sqrt(across @ result.covariance[:2, :2] @ across)
     assert sigma_along > 0.05 and sigma_along > 5 * sigma_across
+
+
+def test_a_weak_prior_decides_a_corridor_along_itself_and_nothing_else():
+    """A degenerate match is refined again with the weak prior: along the corridor its
+    covariance is then the weak prior's (the scan adds nothing there) while across it and
+    in rotation the scan still decides, as with the wide prior alone."""
+    ref, cur, a, true = _corridor_pair()
+    guess = true + np.array([0.02, 0.02, math.radians(1.0)])     # within the weak prior's σ
+    wide = np.diag([0.25 ** 2, 0.25 ** 2, math.radians(5.0) ** 2])
+    weak = np.diag([0.03 ** 2, 0.03 ** 2, math.radians(5.0) ** 2])
+    reference = ReferenceMap(ref)
+    alone, helped = reference.match(cur, guess, wide), reference.match(cur, guess, wide, weak)
+    assert alone.degenerate and helped.degenerate
+    assert alone.weak_prior_weight == 0.0 and helped.weak_prior_weight == 1.0
+    c, s = math.cos(a[2]), math.sin(a[2])
+    across, along = np.array([s, c]), np.array([c, -s])
+    floor = CFG.min_sigma_xy_m ** 2
+    assert along @ helped.covariance[:2, :2] @ along == pytest.approx(0.03 ** 2 + floor, rel=0.05)
+    assert 0.5 * 0.25 ** 2 < along @ alone.covariance[:2, :2] @ along <= 0.25 ** 2 + floor
+    # across the corridor and in rotation the scan decides alike (the corridor test above),
+    # within a σ of the match alone
+    change = pose_error(helped.pose, alone.pose)
+    assert abs(change[:2] @ across) < math.sqrt(across @ alone.covariance[:2, :2] @ across)
+    assert abs(change[2]) < math.sqrt(alone.covariance[2, 2])
+    assert abs((helped.pose[:2] - guess[:2]) @ along) < 0.005
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_weak_prior_leaves_a_well_constrained_match_alone(seed):
+    rng = np.random.default_rng(seed)
+    ref, cur, true = _room_pair(rng)
+    guess = true + perturbation(rng, 0.2, 10.0)
+    wide = np.diag([0.25 ** 2, 0.25 ** 2, math.radians(10.0) ** 2])
+    reference = ReferenceMap(ref)
+    alone = reference.match(cur, guess, wide)
+    helped = reference.match(cur, guess, wide, np.diag([0.01 ** 2, 0.01 ** 2, math.radians(10.0) ** 2]))
+    assert helped.weak_prior_weight == 0.0 and not helped.degenerate
+    np.testing.assert_array_equal(helped.pose, alone.pose)
+    np.testing.assert_array_equal(helped.covariance, alone.covariance)
+
+
+def test_the_weak_prior_s_share_falls_continuously_with_the_constraint():
+    """1 up to ``degenerate_ratio``, 0 from twice it, linear in the log of the ratio
+    between: no ratio where an ulp flips the prior."""
+    reference = ReferenceMap(np.zeros((0, 2)))
+    limit = CFG.degenerate_ratio
+
+    def share(ratio):
+        return reference._weak_weight(np.diag([1.0, ratio, 1.0]))
+
+    assert share(0.0) == 1.0 and share(limit) == 1.0 and share(2 * limit) == 0.0 and share(0.5) == 0.0
+    assert share(limit * math.sqrt(2.0)) == pytest.approx(0.5)
+    ratios = np.linspace(0.5 * limit, 2.5 * limit, 2001)
+    shares = np.array([share(r) for r in ratios])
+    assert np.all(np.diff(shares) <= 0) and np.max(np.abs(np.diff(shares))) < 2e-3
 
 
 def test_empty_and_tiny_inputs_fall_back_cleanly():

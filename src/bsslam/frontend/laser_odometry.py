@@ -53,6 +53,13 @@ _LIMITS = InputLimits()
 # consistent match lies.
 _WINDOW_PROBABILITY = 0.5
 
+# The odometry's translation σ learned from the matches (FrontendConfig.odometry_learned_window):
+# matches needed before it is used, the bounds of its factor on the model's σ, and the
+# median of χ²₁ (a component's squared disagreement in its σ).
+_LEARN_MIN_MATCHES = 20
+_LEARN_SCALE_BOUNDS = (0.1, 10.0)
+_CHI2_1_MEDIAN = 0.454936423119572
+
 # One pose at a time, :mod:`bsslam.se2`'s compose/between cost ~20 µs of numpy calls each
 # (several per scan); these do the same float arithmetic, in the same order, on Python
 # floats (math.cos/sin and numpy's agree bit for bit, and Python's float ``%`` is numpy's
@@ -160,6 +167,9 @@ class LaserOdometry:
         # covariance is not kept: the window adds none of their freedom
         self._recent: deque[tuple[np.ndarray, np.ndarray, np.ndarray]] = deque(
             maxlen=config.odometry_gate_steps - 1)
+        # the last well-constrained trusted matches' squared disagreement with the odometry,
+        # forward and sideways, each in σ² of the odometry model; newest last
+        self._odometry_misfit: deque[tuple[float, float]] = deque(maxlen=config.odometry_learned_window)
 
     def odometry_covariance(self, increment: np.ndarray) -> np.ndarray:
         """(3, 3) diagonal covariance of a raw odometry increment under the config's model."""
@@ -203,8 +213,11 @@ class LaserOdometry:
         guess = np.array(_compose(prev3, odo_inc.tolist()))
         match = None
         reference = self._submap()
+        prior_cov = rot @ odo_cov @ rot.T
         if reference is not None:
-            match = reference.match(points, guess, rot @ odo_cov @ rot.T)
+            scale = self.odometry_scale()
+            weak_prior = None if scale is None else rot @ (odo_cov * np.outer(scale, scale)) @ rot.T
+            match = reference.match(points, guess, prior_cov, weak_prior)
         if match is not None and match.ok:
             increment = np.array(_between(prev3, match.pose.tolist()))
             covariance = rot.T @ match.covariance @ rot
@@ -219,6 +232,8 @@ class LaserOdometry:
             self.stats.degenerate += int(match.degenerate)
             fallback = False
             self._recent.append((increment, covariance, odo_inc))   # maxlen 0 keeps none
+            if match.weak_prior_weight == 0.0 and not match.degenerate:
+                self._learn_odometry(match, guess, prior_cov, odo_cov, rot)
         else:
             increment, covariance, fallback = odo_inc, odo_cov, True
             self._recent.clear()
@@ -230,6 +245,47 @@ class LaserOdometry:
         if keyframe:
             self._add_keyframe(self.pose, points)
         return FrontendStep(increment, covariance, self.pose.copy(), odo_inc, match, fallback, keyframe)
+
+    def odometry_scale(self) -> np.ndarray | None:
+        """(3,) factors on the odometry model's σ of the robot-frame Δx (forward), Δy and
+        Δφ (always 1) that the last well-constrained matches measured
+        (``odometry_learned_window``): for Δx and Δy, √(median squared disagreement in the
+        model's σ ÷ the median of χ²₁), within [0.1, 10]. None until 20 matches are in,
+        or when not learning.
+
+        It is the prior a degenerate match's weak direction is refined with
+        (:meth:`ReferenceMap.match`): the model's σ must cover the worst wheels bsslam may
+        meet, so where the wheels are better, a corridor's position along itself came from
+        the scan's few features along it (which pull towards where the submap has points:
+        on Acapulco four matches in a row came out 20–50 % short while the odometry was
+        within 10 %). The heading keeps the model's σ: a wheel odometry's heading drifts
+        by a bias (0.29° a metre on the synthetic logs) that a σ does not describe."""
+        if len(self._odometry_misfit) < _LEARN_MIN_MATCHES:
+            return None
+        scale = np.sqrt(np.median(np.asarray(self._odometry_misfit), axis=0) / _CHI2_1_MEDIAN)
+        return np.r_[np.clip(scale, *_LEARN_SCALE_BOUNDS), 1.0]
+
+    def _learn_odometry(self, match: MatchResult, guess: np.ndarray, prior_cov: np.ndarray,
+                        odo_cov: np.ndarray, rot: np.ndarray) -> None:
+        """Record how far a trusted, well-constrained ``match``'s translation lies from the
+        odometry's ``guess`` (3,, front-end frame), forward and sideways in the previous
+        robot frame (``rot``: its rotation, 3 × 3), each squared in σ² of the odometry
+        model ``odo_cov`` (3, 3, robot frame). The refinement's prior ``prior_cov`` (3, 3,
+        front-end frame) pulled the match towards the guess; the pull is undone (the scan
+        alone's minimum, from the Gauss–Newton normal equations at the match) so that
+        the disagreement is the scan's, not partly the prior's."""
+        cfg = self.config
+        e = match.pose - guess
+        e[2] = _wrap(float(e[2]))
+        scan_information = match.information / (cfg.range_sigma_m ** 2 * cfg.covariance_inflation)
+        try:
+            e = e + np.linalg.solve(scan_information, np.linalg.solve(prior_cov, e))
+        except np.linalg.LinAlgError:
+            return
+        e = rot.T @ e
+        misfit = (float(e[0] ** 2 / odo_cov[0, 0]), float(e[1] ** 2 / odo_cov[1, 1]))
+        if math.isfinite(misfit[0]) and math.isfinite(misfit[1]):
+            self._odometry_misfit.append(misfit)
 
     def _agrees_with_odometry(self, increment: np.ndarray, covariance: np.ndarray, odometry: np.ndarray,
                               odometry_covariance: np.ndarray, probability: float | None = None) -> bool:

@@ -353,6 +353,9 @@ class MatchResult:
         reason: "ok" or one of :data:`FAIL_REASONS`.
         degenerate: the scan fixes one translation direction only weakly (a corridor);
             that direction then comes from the prior.
+        weak_prior_weight: how much of ``weak_prior_covariance`` (see :meth:`ReferenceMap.match`)
+            the refinement used, in [0, 1]: 1 for a degenerate match, 0 for a well-constrained
+            one (or when none was given).
         correlation: best mean likelihood of the fine correlative search, in [0, 1].
         points: scan points used in the refinement.
         inliers: of which inliers.
@@ -371,6 +374,7 @@ class MatchResult:
     inliers: int = 0
     iterations: int = 0
     information: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    weak_prior_weight: float = 0.0
 
 
 # ---------------------------------------------------------------------------------------------
@@ -666,13 +670,23 @@ class ReferenceMap:
 
     # -- the whole match ---------------------------------------------------------------------
 
-    def match(self, points: np.ndarray, guess: np.ndarray, prior_covariance: np.ndarray | None = None) -> MatchResult:
+    def match(self, points: np.ndarray, guess: np.ndarray, prior_covariance: np.ndarray | None = None,
+              weak_prior_covariance: np.ndarray | None = None) -> MatchResult:
         """Match robot-frame scan ``points`` (n, 2) around the pose ``guess`` (3,).
 
         Args:
             prior_covariance: (3, 3) covariance of the guess in the reference frame; the
                 refinement's weak prior and the covariance returned when the match fails.
                 None: a diagonal one from the search window.
+            weak_prior_covariance: (3, 3) covariance of the guess for a scan that fixes a
+                translation direction only weakly (a corridor): how well the guess is
+                actually known there, when that is better than ``prior_covariance`` says.
+                A degenerate match is refined again with this prior (the scan's few
+                features along the corridor otherwise decide that direction); one whose
+                weakest-to-strongest ratio lies between ``degenerate_ratio`` and twice it
+                with a prior blended in information between the two (1 at the ratio, 0 at
+                twice it, linear in its logarithm), so that no ratio is a knife edge.
+                None: ``prior_covariance`` for every match.
 
         Returns:
             :class:`MatchResult`; ``ok`` False means: use the guess.
@@ -703,12 +717,17 @@ class ReferenceMap:
         start, correlation = self.correlative(search, guess)
         prior_info = np.linalg.inv(prior_covariance)
         pose, info, Jr, w, found, iterations = self._refine(pts, start, guess, prior_info)
+        weak_weight = 0.0 if weak_prior_covariance is None else self._weak_weight(info)
+        if weak_weight > 0.0:
+            prior_info = prior_info + weak_weight * (np.linalg.inv(weak_prior_covariance) - prior_info)
+            pose, info, Jr, w, found, iterations = self._refine(pts, start, guess, prior_info)
 
         r = Jr[:, 3]                                      # residuals of the points found
         inliers = int(np.count_nonzero(np.abs(r) < cfg.inlier_distance_m))
         n = pts.shape[0]
         score = inliers / n
-        base = dict(correlation=correlation, points=n, inliers=inliers, iterations=iterations, information=info)
+        base = dict(correlation=correlation, points=n, inliers=inliers, iterations=iterations, information=info,
+                    weak_prior_weight=weak_weight)
         if r.shape[0] < cfg.min_points:
             return fail("too_few_correspondences", **base)
         if score < cfg.min_inlier_fraction:
@@ -721,9 +740,27 @@ class ReferenceMap:
         info_scan = info / sigma2
         cov = np.linalg.inv(info_scan + prior_info)
         cov = 0.5 * (cov + cov.T) + np.diag([cfg.min_sigma_xy_m ** 2, cfg.min_sigma_xy_m ** 2, cfg.min_sigma_rad ** 2])
-        eig = np.linalg.eigvalsh(info[:2, :2])
-        degenerate = bool(eig[0] < cfg.degenerate_ratio * max(eig[1], 1e-12))
+        degenerate = self._weakness(info) < cfg.degenerate_ratio
         return MatchResult(pose, cov, score, True, "ok", degenerate, **base)
+
+    @staticmethod
+    def _weakness(information: np.ndarray) -> float:
+        """The smallest over the largest eigenvalue of the translation block of a scan's
+        ``information`` (3, 3): near 0 in a corridor."""
+        eig = np.linalg.eigvalsh(information[:2, :2])
+        return float(eig[0] / max(eig[1], 1e-12))
+
+    def _weak_weight(self, information: np.ndarray) -> float:
+        """The share of the weak prior for a scan with ``information`` (3, 3): 1 at or
+        below ``degenerate_ratio``, 0 at or above twice it, linear in the logarithm of the
+        ratio between (see :meth:`match`)."""
+        ratio = self._weakness(information)
+        limit = self.config.degenerate_ratio
+        if ratio <= limit:
+            return 1.0
+        if ratio >= 2.0 * limit:
+            return 0.0
+        return math.log(2.0 * limit / ratio) / math.log(2.0)
 
 
 def _distinct_maxima(score: np.ndarray, k: int, *, rot_sep: int, axis: np.ndarray, off_sep: int,
