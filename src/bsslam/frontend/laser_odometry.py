@@ -41,7 +41,8 @@ from bsslam.config import FrontendConfig
 from bsslam.dataset import Frame
 from bsslam.errors import InputError
 from bsslam.input_limits import InputLimits, offset_problem, pose_problem
-from bsslam.frontend.scan_matcher import MatchResult, ReferenceMap, estimate_normals, scan_points, voxel_thin
+from bsslam.frontend.scan_matcher import (MatchResult, ReferenceMap, _wrap, estimate_normals, scan_disagreement,
+                                          scan_points, voxel_thin)
 from bsslam.se2 import compose_with_covariance, squared_mahalanobis
 
 
@@ -64,10 +65,6 @@ _CHI2_1_MEDIAN = 0.454936423119572
 # (several per scan); these do the same float arithmetic, in the same order, on Python
 # floats (math.cos/sin and numpy's agree bit for bit, and Python's float ``%`` is numpy's
 # ``mod``; tests/frontend check them against se2).
-
-def _wrap(a: float) -> float:
-    return math.pi - (math.pi - a) % (2.0 * math.pi)
-
 
 def _compose(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:
     """:func:`bsslam.se2.compose` of two poses given as float triples."""
@@ -271,15 +268,11 @@ class LaserOdometry:
         odometry's ``guess`` (3,, front-end frame), forward and sideways in the previous
         robot frame (``rot``: its rotation, 3 × 3), each squared in σ² of the odometry
         model ``odo_cov`` (3, 3, robot frame). The refinement's prior ``prior_cov`` (3, 3,
-        front-end frame) pulled the match towards the guess; the pull is undone (the scan
-        alone's minimum, from the Gauss–Newton normal equations at the match) so that
-        the disagreement is the scan's, not partly the prior's."""
-        cfg = self.config
-        e = match.pose - guess
-        e[2] = _wrap(float(e[2]))
-        scan_information = match.information / (cfg.range_sigma_m ** 2 * cfg.covariance_inflation)
+        front-end frame) pulled the match towards the guess; the pull is undone
+        (:func:`~bsslam.frontend.scan_matcher.scan_disagreement`) so that the disagreement
+        is the scan's, not partly the prior's."""
         try:
-            e = e + np.linalg.solve(scan_information, np.linalg.solve(prior_cov, e))
+            e = scan_disagreement(match, guess, prior_cov, self.config)
         except np.linalg.LinAlgError:
             return
         e = rot.T @ e

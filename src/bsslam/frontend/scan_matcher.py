@@ -607,7 +607,7 @@ class ReferenceMap:
         points = np.ascontiguousarray(points, dtype=float)
         x0, x1, x2 = (float(v) for v in start)
         m0, m1, m2 = (float(v) for v in prior_mean)
-        sigma2 = cfg.range_sigma_m ** 2 * cfg.covariance_inflation
+        sigma2 = _refinement_sigma2(cfg)
         gate = cfg.icp_max_distance_m
         # The pose is kept as three floats and the 3×3 algebra done with scalars where that
         # is exact: a few-element numpy call costs more than its arithmetic (~7 iterations
@@ -761,6 +761,27 @@ class ReferenceMap:
         if ratio >= 2.0 * limit:
             return 0.0
         return math.log(2.0 * limit / ratio) / math.log(2.0)
+
+
+def _refinement_sigma2(config: FrontendConfig) -> float:
+    """σ² (m²) the refinement gives each point-to-line residual: the stated σ, inflated."""
+    return config.range_sigma_m ** 2 * config.covariance_inflation
+
+
+def scan_disagreement(match: MatchResult, guess: np.ndarray, prior_covariance: np.ndarray,
+                      config: FrontendConfig) -> np.ndarray:
+    """(3,) where the scan alone puts the pose, less ``guess`` (3,; the heading wrapped):
+    ``match.pose`` with the refinement's pull towards ``guess`` under ``prior_covariance``
+    (3, 3) undone, from the Gauss–Newton normal equations at the match,
+    H_scan (x − x_scan) + I_prior (x − guess) = 0.
+
+    Raises:
+        numpy.linalg.LinAlgError: the scan's information is singular.
+    """
+    e = match.pose - guess
+    e[2] = _wrap(float(e[2]))
+    scan_information = match.information / _refinement_sigma2(config)
+    return e + np.linalg.solve(scan_information, np.linalg.solve(prior_covariance, e))
 
 
 def _distinct_maxima(score: np.ndarray, k: int, *, rot_sep: int, axis: np.ndarray, off_sep: int,
