@@ -323,6 +323,43 @@ with signals_interrupt():
     assert "Traceback" not in done.stderr and "Exception ignored" not in done.stderr, done.stderr
 
 
+def test_a_signal_in_a_kernels_callback_into_numba_is_held_and_delivered_by_progress():
+    """A compiled kernel returning arrays calls back into numba's Python code to box them;
+    a signal pending then raised its KeyboardInterrupt in there, and the kernel returned a
+    SystemError that no interruption handler knew (CI: a SIGTERM mid-simulate exited 1,
+    not 130). The kernel here sends the signal itself (libc's kill through ctypes), so it
+    is pending exactly when the boxing runs: the call returns whole and the next progress
+    callback raises the signal. (In a subprocess: the signal must not reach pytest.)"""
+    script = """
+import ctypes, os
+import numpy as np
+from numba import njit
+from bsslam.cli import _deliver_swallowed_signal, signals_interrupt
+
+kill = ctypes.CDLL(None).kill
+kill.argtypes = [ctypes.c_int, ctypes.c_int]
+kill.restype = ctypes.c_int
+
+@njit
+def signalled_then_arrays(pid, sig):
+    if sig:
+        kill(pid, sig)
+    return 1, np.zeros(3), np.zeros((0, 2))
+
+signalled_then_arrays(os.getpid(), 0)        # compiled before the signal
+with signals_interrupt():
+    status, a, b = signalled_then_arrays(os.getpid(), 15)
+    print("returned", status, a.shape, b.shape)
+    try:
+        _deliver_swallowed_signal()
+    except KeyboardInterrupt as exc:
+        print("delivered", exc)
+"""
+    done = _run_python(script, timeout=300)
+    assert done.stdout.split("\n")[:2] == ["returned 1 (3,) (0, 2)", "delivered SIGTERM"], \
+        done.stdout + done.stderr
+
+
 def test_a_signal_while_numba_loads_its_implementations_is_raised_after_the_load():
     """numba loads its implementations at the first kernel call by importing modules that
     register themselves; a KeyboardInterrupt in the middle leaves them half-registered and

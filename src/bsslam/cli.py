@@ -186,7 +186,9 @@ def signals_interrupt() -> Iterator[None]:
     while numba compiles or loads a kernel (its compiler lock): raised in one of LLVM's
     callbacks into Python, the KeyboardInterrupt leaves LLVM's object cache inconsistent
     and the process aborts (SIGABRT) at the next code generation; the signal is raised
-    once the compilation is done."""
+    once the compilation is done. A signal that lands in numba's Python code called back
+    from a running kernel (boxing its result) would come out of the kernel as a
+    SystemError; it is held and raised by the next progress callback."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -219,8 +221,11 @@ def signals_interrupt() -> Iterator[None]:
         _signalled.append(name)
         if compiling:
             held_in_compile = True
-        elif not holding:
+        elif not holding and not _in_numba(frame):
             raise KeyboardInterrupt(name)
+        # in numba's own Python code (a compiled kernel boxing its result calls back into
+        # it) the exception would come out as a SystemError that no interruption handler
+        # recognises: held, the next progress callback raises it
 
     def unraisable(info):
         # the signal's KeyboardInterrupt raised inside a ctypes callback (numba compiling)
@@ -248,10 +253,24 @@ def signals_interrupt() -> Iterator[None]:
         numba_event.unregister("numba:compiler_lock", listener)
 
 
-#: Signals the handler raised for. A KeyboardInterrupt raised while the interpreter is in
-#: a ctypes callback (numba compiling a kernel calls back into Python) is printed and
-#: dropped, so the run would go on; the progress callbacks deliver it again.
+#: Signals the handler raised for or held. A KeyboardInterrupt raised while the interpreter
+#: is in a ctypes callback (numba compiling a kernel calls back into Python) is printed and
+#: dropped, and one in numba's own Python code is held, so the run would go on; the
+#: progress callbacks deliver it (again).
 _signalled: list[str] = []
+
+
+def _in_numba(frame) -> bool:
+    """Whether the interpreter is inside numba's own Python code (``frame`` or a caller):
+    a compiled kernel calls back into it, e.g. to box the arrays it returns."""
+    import numba
+
+    root = os.path.dirname(numba.__file__) + os.sep
+    while frame is not None:
+        if frame.f_code.co_filename.startswith(root):
+            return True
+        frame = frame.f_back
+    return False
 
 
 def _deliver_swallowed_signal() -> None:
