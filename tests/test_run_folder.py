@@ -323,18 +323,12 @@ with signals_interrupt():
     assert "Traceback" not in done.stderr and "Exception ignored" not in done.stderr, done.stderr
 
 
-def test_a_signal_in_a_kernels_callback_into_numba_is_held_and_delivered_by_progress():
-    """A compiled kernel returning arrays calls back into numba's Python code to box them;
-    a signal pending then raised its KeyboardInterrupt in there, and the kernel returned a
-    SystemError that no interruption handler knew (CI: a SIGTERM mid-simulate exited 1,
-    not 130). The kernel here sends the signal itself (libc's kill through ctypes), so it
-    is pending exactly when the boxing runs: the call returns whole and the next progress
-    callback raises the signal. (In a subprocess: the signal must not reach pytest.)"""
-    script = """
+#: A compiled kernel that sends itself a signal (libc's kill through ctypes) and returns
+#: arrays: the signal is pending exactly when numba boxes them, in its Python code.
+_SIGNALLING_KERNEL = """
 import ctypes, os
 import numpy as np
 from numba import njit
-from bsslam.cli import _deliver_swallowed_signal, signals_interrupt
 
 kill = ctypes.CDLL(None).kill
 kill.argtypes = [ctypes.c_int, ctypes.c_int]
@@ -345,6 +339,19 @@ def signalled_then_arrays(pid, sig):
     if sig:
         kill(pid, sig)
     return 1, np.zeros(3), np.zeros((0, 2))
+
+"""
+
+
+def test_a_signal_in_a_kernels_callback_into_numba_is_held_and_delivered_by_progress():
+    """A compiled kernel returning arrays calls back into numba's Python code to box them;
+    a signal pending then raised its KeyboardInterrupt in there, and the kernel returned a
+    SystemError that no interruption handler knew (CI: a SIGTERM mid-simulate exited 1,
+    not 130). The kernel here sends the signal itself (libc's kill through ctypes), so it
+    is pending exactly when the boxing runs: the call returns whole and the next progress
+    callback raises the signal. (In a subprocess: the signal must not reach pytest.)"""
+    script = _SIGNALLING_KERNEL + """
+from bsslam.cli import _deliver_swallowed_signal, signals_interrupt
 
 signalled_then_arrays(os.getpid(), 0)        # compiled before the signal
 with signals_interrupt():
@@ -357,6 +364,37 @@ with signals_interrupt():
 """
     done = _run_python(script, timeout=300)
     assert done.stdout.split("\n")[:2] == ["returned 1 (3,) (0, 2)", "delivered SIGTERM"], \
+        done.stdout + done.stderr
+
+
+def test_a_ctrl_c_in_a_kernels_callback_into_numba_is_a_keyboard_interrupt_to_the_library():
+    """Without the command line's handler (a library user's Ctrl-C) the KeyboardInterrupt
+    raised in a kernel's callback into numba comes out as a SystemError; inside
+    :func:`bsslam.compiled.kernel_interrupts` (the run's loops and its end-of-run passes)
+    it is the KeyboardInterrupt again, so the run ends early with its results; another
+    SystemError passes unchanged. (In a subprocess: the signal must not reach pytest.)"""
+    script = _SIGNALLING_KERNEL + """
+import signal
+from bsslam.compiled import kernel_interrupts
+
+signalled_then_arrays(os.getpid(), 0)
+try:
+    signalled_then_arrays(os.getpid(), int(signal.SIGINT))
+except SystemError as exc:
+    print("bare", type(exc).__name__)
+try:
+    with kernel_interrupts():
+        signalled_then_arrays(os.getpid(), int(signal.SIGINT))
+except KeyboardInterrupt:
+    print("inside KeyboardInterrupt")
+try:
+    with kernel_interrupts():
+        raise SystemError("other")
+except SystemError as exc:
+    print("other", exc)
+"""
+    done = _run_python(script, timeout=300)
+    assert done.stdout.split("\n")[:3] == ["bare SystemError", "inside KeyboardInterrupt", "other other"], \
         done.stdout + done.stderr
 
 

@@ -16,7 +16,9 @@ those calls. The options are chosen so that a compiled loop gives numpy's number
 
 from __future__ import annotations
 
+import contextlib
 import os
+from typing import Iterator
 
 from numba import njit
 
@@ -45,3 +47,21 @@ def load_compiler_registries() -> None:
     from numba.core.registry import cpu_target
 
     cpu_target.target_context.refresh()
+
+
+@contextlib.contextmanager
+def kernel_interrupts() -> Iterator[None]:
+    """Inside, a KeyboardInterrupt (Ctrl-C) is a KeyboardInterrupt even when it lands in a
+    running kernel's callback into numba's Python code (boxing the arrays it returns): the
+    kernel hands it on as a SystemError caused by it, which is raised again as the
+    KeyboardInterrupt, so a caller's early end on an interruption still sees it. Any
+    other SystemError passes unchanged."""
+    try:
+        yield
+    except SystemError as exc:
+        cause = exc.__cause__
+        while cause is not None and not isinstance(cause, KeyboardInterrupt):
+            cause = cause.__cause__
+        if cause is None:
+            raise
+        raise cause from exc

@@ -261,8 +261,8 @@ def _serve(jobs, out, wanted, preload: tuple[str, ...]) -> None:
     import importlib
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    import bsslam.io  # noqa: F401  (the readers: a prefetch job unpickles one)
-    import bsslam.frontend  # noqa: F401
+    for module in ("bsslam.io", "bsslam.frontend"):   # the readers (a prefetch job unpickles one), the matcher
+        importlib.import_module(module)
 
     try:
         out.send(("ready", None))

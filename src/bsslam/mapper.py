@@ -27,6 +27,7 @@ from typing import Callable, Protocol
 import numpy as np
 
 from bsslam.blas_threads import one_blas_thread
+from bsslam.compiled import kernel_interrupts
 from bsslam.config import SLAMConfig
 from bsslam.dataset import Frame, SkipCounter
 from bsslam.errors import InputError
@@ -464,7 +465,7 @@ class Mapper:
                                                   + time.perf_counter() - t0)
             t0 = time.perf_counter()
             try:
-                with one_blas_thread():
+                with one_blas_thread(), kernel_interrupts():
                     submaps.sweep_loops()    # end-of-run work, like the second pass: not a scan's
             except KeyboardInterrupt:
                 interrupted = True
@@ -476,7 +477,7 @@ class Mapper:
         if self.config.relocalize and n and not interrupted:
             t0 = time.perf_counter()
             try:
-                with one_blas_thread():
+                with one_blas_thread(), kernel_interrupts():
                     if submaps is not None:
                         relocalized, points = relocalize_submaps(submaps, records, self.config, point_stride,
                                                                  progress)

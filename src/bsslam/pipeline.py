@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 from typing import Callable, Iterator
 
+from bsslam.compiled import kernel_interrupts
 from bsslam.config import SLAMConfig
 from bsslam.dataset import Dataset
 from bsslam.errors import MemoryBudgetError
@@ -73,11 +74,13 @@ def run_dataset(dataset: Dataset, config: SLAMConfig, *, steps: int | None = Non
     helper = (HelperProcess() if prefetch is True else prefetch) or None
     handover = None
     try:
-        handover = _run_here(dataset, mapper, start, steps, progress, total, checkpoint,
-                             None if helper is None else helper.ready)
-        if handover is not None:
-            with contextlib.closing(helper.prefetch(dataset, mapper.frontend, start=handover, steps=steps)) as frames:
-                _run_prefetched(frames, helper, mapper, handover, progress, total, checkpoint)
+        with kernel_interrupts():
+            handover = _run_here(dataset, mapper, start, steps, progress, total, checkpoint,
+                                 None if helper is None else helper.ready)
+            if handover is not None:
+                with contextlib.closing(helper.prefetch(dataset, mapper.frontend, start=handover,
+                                                        steps=steps)) as frames:
+                    _run_prefetched(frames, helper, mapper, handover, progress, total, checkpoint)
     except KeyboardInterrupt:
         interrupted = True
     except MemoryBudgetError as exc:   # the results so far are kept, with the reason
