@@ -329,3 +329,20 @@ def test_the_learned_sigma_waits_for_enough_matches():
     data = simulate(get_world("mixed"), SimConfig(), seed=0, steps=15)
     lo, _ = _run(list(data))
     assert lo.stats.matched == 14 and lo.odometry_scale() is None
+
+
+def test_the_matches_learned_from_do_not_depend_on_a_weak_prior_being_offered():
+    """A match in the weak prior's taper (weakness between ``degenerate_ratio`` and twice
+    it) is not learned from, whether the prior was offered (share > 0) or not yet (share
+    0, before the first 20 matches): the set of matches that measure the odometry is the
+    scan's choice, not the learner's state's. One at or above twice the ratio is."""
+    lo = LaserOdometry()
+    limit = lo.config.degenerate_ratio
+    from bsslam.frontend.scan_matcher import MatchResult
+    def result(weakness, share):
+        return MatchResult(np.zeros(3), np.eye(3), 1.0, True, "ok", weakness < limit, weak_prior_weight=share,
+                           weakness=weakness)
+    for share in (0.0, 0.3):
+        assert not lo._learns_from(result(1.5 * limit, share))
+    assert not lo._learns_from(result(0.5 * limit, 1.0))
+    assert lo._learns_from(result(2.0 * limit, 0.0)) and lo._learns_from(result(0.3, 0.0))

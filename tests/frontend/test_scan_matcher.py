@@ -164,6 +164,7 @@ def test_a_weak_prior_leaves_a_well_constrained_match_alone(seed):
     alone = reference.match(cur, guess, wide)
     helped = reference.match(cur, guess, wide, np.diag([0.01 ** 2, 0.01 ** 2, math.radians(10.0) ** 2]))
     assert helped.weak_prior_weight == 0.0 and not helped.degenerate
+    assert helped.weakness == alone.weakness >= 2 * CFG.degenerate_ratio   # the scan's, with or without the offer
     np.testing.assert_array_equal(helped.pose, alone.pose)
     np.testing.assert_array_equal(helped.covariance, alone.covariance)
 
@@ -175,7 +176,7 @@ def test_the_weak_prior_s_share_falls_continuously_with_the_constraint():
     limit = CFG.degenerate_ratio
 
     def share(ratio):
-        return reference._weak_weight(np.diag([1.0, ratio, 1.0]))
+        return reference._weak_weight(ReferenceMap._weakness(np.diag([1.0, ratio, 1.0])))
 
     assert share(0.0) == 1.0 and share(limit) == 1.0 and share(2 * limit) == 0.0 and share(0.5) == 0.0
     assert share(limit * math.sqrt(2.0)) == pytest.approx(0.5)

@@ -229,7 +229,7 @@ class LaserOdometry:
             self.stats.degenerate += int(match.degenerate)
             fallback = False
             self._recent.append((increment, covariance, odo_inc))   # maxlen 0 keeps none
-            if match.weak_prior_weight == 0.0 and not match.degenerate:
+            if self._learns_from(match):
                 self._learn_odometry(match, guess, prior_cov, odo_cov, rot)
         else:
             increment, covariance, fallback = odo_inc, odo_cov, True
@@ -261,6 +261,13 @@ class LaserOdometry:
             return None
         scale = np.sqrt(np.median(np.asarray(self._odometry_misfit), axis=0) / _CHI2_1_MEDIAN)
         return np.r_[np.clip(scale, *_LEARN_SCALE_BOUNDS), 1.0]
+
+    def _learns_from(self, match: MatchResult) -> bool:
+        """Whether a trusted ``match`` measures the odometry: it constrains every direction
+        well enough that no weak prior would touch it (its weakness at or above twice
+        ``degenerate_ratio``). Decided by the scan alone, so the matches learned from are
+        the same whether or not a weak prior was on offer (none is before the first 20)."""
+        return match.weakness >= 2.0 * self.config.degenerate_ratio and not match.degenerate
 
     def _learn_odometry(self, match: MatchResult, guess: np.ndarray, prior_cov: np.ndarray,
                         odo_cov: np.ndarray, rot: np.ndarray) -> None:

@@ -356,6 +356,9 @@ class MatchResult:
         weak_prior_weight: how much of ``weak_prior_covariance`` (see :meth:`ReferenceMap.match`)
             the refinement used, in [0, 1]: 1 for a degenerate match, 0 for a well-constrained
             one (or when none was given).
+        weakness: the smallest over the largest eigenvalue of the translation block of
+            the scan's information at the first refinement (near 0 in a corridor): what
+            ``weak_prior_weight`` follows, whether or not a weak prior was given.
         correlation: best mean likelihood of the fine correlative search, in [0, 1].
         points: scan points used in the refinement.
         inliers: of which inliers.
@@ -375,6 +378,7 @@ class MatchResult:
     iterations: int = 0
     information: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
     weak_prior_weight: float = 0.0
+    weakness: float = 0.0
 
 
 # ---------------------------------------------------------------------------------------------
@@ -717,7 +721,8 @@ class ReferenceMap:
         start, correlation = self.correlative(search, guess)
         prior_info = np.linalg.inv(prior_covariance)
         pose, info, Jr, w, found, iterations = self._refine(pts, start, guess, prior_info)
-        weak_weight = 0.0 if weak_prior_covariance is None else self._weak_weight(info)
+        weakness = self._weakness(info)
+        weak_weight = 0.0 if weak_prior_covariance is None else self._weak_weight(weakness)
         if weak_weight > 0.0:
             prior_info = prior_info + weak_weight * (np.linalg.inv(weak_prior_covariance) - prior_info)
             pose, info, Jr, w, found, iterations = self._refine(pts, start, guess, prior_info)
@@ -727,7 +732,7 @@ class ReferenceMap:
         n = pts.shape[0]
         score = inliers / n
         base = dict(correlation=correlation, points=n, inliers=inliers, iterations=iterations, information=info,
-                    weak_prior_weight=weak_weight)
+                    weak_prior_weight=weak_weight, weakness=weakness)
         if r.shape[0] < cfg.min_points:
             return fail("too_few_correspondences", **base)
         if score < cfg.min_inlier_fraction:
@@ -750,11 +755,10 @@ class ReferenceMap:
         eig = np.linalg.eigvalsh(information[:2, :2])
         return float(eig[0] / max(eig[1], 1e-12))
 
-    def _weak_weight(self, information: np.ndarray) -> float:
-        """The share of the weak prior for a scan with ``information`` (3, 3): 1 at or
-        below ``degenerate_ratio``, 0 at or above twice it, linear in the logarithm of the
-        ratio between (see :meth:`match`)."""
-        ratio = self._weakness(information)
+    def _weak_weight(self, ratio: float) -> float:
+        """The share of the weak prior for a scan of weakness ``ratio`` (:meth:`_weakness`):
+        1 at or below ``degenerate_ratio``, 0 at or above twice it, linear in the logarithm
+        of the ratio between (see :meth:`match`)."""
         limit = self.config.degenerate_ratio
         if ratio <= limit:
             return 1.0
