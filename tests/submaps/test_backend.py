@@ -21,7 +21,8 @@ from bsslam.slam import MapSpline
 from bsslam.slam.state import JointState
 from bsslam.spline import BSplineCurve
 from bsslam.submaps.backend import (SURFACE_SPACING_M, SubmapSLAM, _edge, _proper, mark_surfaces, matching_shape,
-                                    seam_covariance, transform_spline)
+                                    seam_covariance, search_window, transform_spline, vouched_by_graph, window_covers)
+from bsslam.submaps.loop_closure import LoopMatch
 from bsslam.submaps.pose_graph import _check_covariance
 from bsslam.submaps.loop_support import chain
 
@@ -329,3 +330,26 @@ def test_a_frozen_submap_keeps_the_seam_covariance(double_loop):
     # the first submap's end covariance is the filter's plus at least the drift of max_distance_m
     assert first.end_covariance[0, 0] >= (cfg.seam_drift_m_per_m * cfg.max_distance_m) ** 2
     assert first.end_covariance[2, 2] >= (cfg.seam_drift_rad_per_m * cfg.max_distance_m) ** 2
+
+
+def test_the_graph_vouches_only_for_matches_whose_window_covered_its_region():
+    """A search window covers ``loop_sigmas`` σ of the graph's relative pose unless
+    :func:`search_window` clipped it at its maximum; a heading window of π covers every
+    heading. An expected match found in a clipped window is not vouched for (it must wait
+    for its neighbours, as a surprising one); nor is an unexpected one in any window."""
+    cfg = SubmapConfig()
+    def window(sigma_m, sigma_rad):
+        cov = np.diag([sigma_m ** 2, (0.5 * sigma_m) ** 2, sigma_rad ** 2])
+        return cov, *search_window(cov, cfg)
+    top = cfg.loop_max_window_m / cfg.loop_sigmas        # the largest σ a window covers
+    for sigma_m, sigma_rad, covers in ((0.1, 0.01, True), (top, 0.01, True), (top * (1 + 1e-9), 0.01, False),
+                                       (70.0, 0.01, False), (1.0, 5.0, True)):
+        cov, window_m, window_rad = window(sigma_m, sigma_rad)
+        assert window_covers(cov, window_m, window_rad, cfg) is covers, (sigma_m, sigma_rad)
+        for expected in (True, False):
+            match = LoopMatch(True, "ok", np.zeros(3), np.eye(3), expected=expected)
+            assert vouched_by_graph(match, cov, window_m, window_rad, cfg) is (covers and expected)
+    # a heading window short of π that does not reach 3 σ
+    narrow = dataclasses.replace(cfg, loop_max_window_rad=1.0)
+    cov, window_m, window_rad = (np.diag([0.01, 0.01, 0.5 ** 2]), *search_window(np.diag([0.01, 0.01, 0.5 ** 2]), narrow))
+    assert window_rad == 1.0 and not window_covers(cov, window_m, window_rad, narrow)
