@@ -776,8 +776,10 @@ class SubmapConfig:
             alignment it could be confused with: the runner-up its search found (its
             *rival*), or, without one, any alignment ``loop_distinct_m`` /
             ``loop_distinct_rad`` away. A match the graph expects (within the 99 % region
-            of its relative pose) enters unless more neighbours disagree than agree; a
-            surprising one only once more agree than disagree, and is dropped
+            of its relative pose, found in a search window that covered ``loop_sigmas`` σ
+            of it: one clipped at ``loop_max_window_m`` saw only part of what the graph
+            admits) enters unless more neighbours disagree than agree; any other, a
+            surprising one, only once more agree than disagree, and is dropped
             (``unsupported``) when no later match can vote on it any more. Ten perturbed
             runs and float32 of every shared log (2026-12-04): the campus's median ATE
             0.414 m against 0.565 m with 0, its ten perturbed runs within 0.332–0.490 m
