@@ -13,7 +13,7 @@ from scipy.stats import chi2
 from bsslam.errors import ConfigError
 from bsslam.frontend import FrontendConfig, ReferenceMap, match_scan, scan_points
 from bsslam.frontend.scan_matcher import (LikelihoodField, _distinct_maxima, _kdtree, _offset_axis, _offset_grid,
-                                          _search_grid, transform_points)
+                                          _search_grid, transform_points, weak_prior_share)
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.se2 import between
 from bsslam.sim import Arc, SimConfig, WallSet, get_world, simulate
@@ -172,11 +172,10 @@ def test_a_weak_prior_leaves_a_well_constrained_match_alone(seed):
 def test_the_weak_prior_s_share_falls_continuously_with_the_constraint():
     """1 up to ``degenerate_ratio``, 0 from twice it, linear in the log of the ratio
     between: no ratio where an ulp flips the prior."""
-    reference = ReferenceMap(np.zeros((0, 2)))
     limit = CFG.degenerate_ratio
 
     def share(ratio):
-        return reference._weak_weight(ReferenceMap._weakness(np.diag([1.0, ratio, 1.0])))
+        return weak_prior_share(ReferenceMap._weakness(np.diag([1.0, ratio, 1.0])), limit)
 
     assert share(0.0) == 1.0 and share(limit) == 1.0 and share(2 * limit) == 0.0 and share(0.5) == 0.0
     assert share(limit * math.sqrt(2.0)) == pytest.approx(0.5)

@@ -42,7 +42,7 @@ from bsslam.dataset import Frame
 from bsslam.errors import InputError
 from bsslam.input_limits import InputLimits, offset_problem, pose_problem
 from bsslam.frontend.scan_matcher import (MatchResult, ReferenceMap, _wrap, estimate_normals, scan_disagreement,
-                                          scan_points, voxel_thin)
+                                          scan_points, voxel_thin, weak_prior_share)
 from bsslam.se2 import compose_with_covariance, squared_mahalanobis
 
 
@@ -264,10 +264,10 @@ class LaserOdometry:
 
     def _learns_from(self, match: MatchResult) -> bool:
         """Whether a trusted ``match`` measures the odometry: it constrains every direction
-        well enough that no weak prior would touch it (its weakness at or above twice
-        ``degenerate_ratio``). Decided by the scan alone, so the matches learned from are
+        well enough that no weak prior would touch it (its share, :func:`weak_prior_share`
+        of its weakness, is 0). Decided by the scan alone, so the matches learned from are
         the same whether or not a weak prior was on offer (none is before the first 20)."""
-        return match.weakness >= 2.0 * self.config.degenerate_ratio and not match.degenerate
+        return weak_prior_share(match.weakness, self.config.degenerate_ratio) == 0.0 and not match.degenerate
 
     def _learn_odometry(self, match: MatchResult, guess: np.ndarray, prior_cov: np.ndarray,
                         odo_cov: np.ndarray, rot: np.ndarray) -> None:

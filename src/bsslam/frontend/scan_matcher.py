@@ -722,7 +722,7 @@ class ReferenceMap:
         prior_info = np.linalg.inv(prior_covariance)
         pose, info, Jr, w, found, iterations = self._refine(pts, start, guess, prior_info)
         weakness = self._weakness(info)
-        weak_weight = 0.0 if weak_prior_covariance is None else self._weak_weight(weakness)
+        weak_weight = 0.0 if weak_prior_covariance is None else weak_prior_share(weakness, cfg.degenerate_ratio)
         if weak_weight > 0.0:
             prior_info = prior_info + weak_weight * (np.linalg.inv(weak_prior_covariance) - prior_info)
             pose, info, Jr, w, found, iterations = self._refine(pts, start, guess, prior_info)
@@ -755,16 +755,17 @@ class ReferenceMap:
         eig = np.linalg.eigvalsh(information[:2, :2])
         return float(eig[0] / max(eig[1], 1e-12))
 
-    def _weak_weight(self, ratio: float) -> float:
-        """The share of the weak prior for a scan of weakness ``ratio`` (:meth:`_weakness`):
-        1 at or below ``degenerate_ratio``, 0 at or above twice it, linear in the logarithm
-        of the ratio between (see :meth:`match`)."""
-        limit = self.config.degenerate_ratio
-        if ratio <= limit:
-            return 1.0
-        if ratio >= 2.0 * limit:
-            return 0.0
-        return math.log(2.0 * limit / ratio) / math.log(2.0)
+
+
+def weak_prior_share(ratio: float, degenerate_ratio: float) -> float:
+    """The share of the weak prior (:meth:`ReferenceMap.match`) for a scan of weakness
+    ``ratio`` (:meth:`ReferenceMap._weakness`): 1 at or below ``degenerate_ratio``, 0 at
+    or above twice it, linear in the logarithm of the ratio between."""
+    if ratio <= degenerate_ratio:
+        return 1.0
+    if ratio >= 2.0 * degenerate_ratio:
+        return 0.0
+    return math.log(2.0 * degenerate_ratio / ratio) / math.log(2.0)
 
 
 def _refinement_sigma2(config: FrontendConfig) -> float:
