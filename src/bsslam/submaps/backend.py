@@ -567,11 +567,17 @@ def search_window(covariance: np.ndarray, config: SubmapConfig) -> tuple[float, 
     """The loop-closure search's half-widths (m, rad) for a relative pose with
     ``covariance`` (3, 3): ``loop_sigmas`` σ of its larger position σ and of its heading,
     clipped to the configured bounds."""
-    sigma_xy = math.sqrt(max(covariance[0, 0], covariance[1, 1]))
-    window_m = min(max(config.loop_sigmas * sigma_xy, config.loop_min_window_m), config.loop_max_window_m)
-    window_rad = min(max(config.loop_sigmas * math.sqrt(covariance[2, 2]), config.loop_min_window_rad),
-                     config.loop_max_window_rad)
+    reach_m, reach_rad = _window_reach(covariance, config)
+    window_m = min(max(reach_m, config.loop_min_window_m), config.loop_max_window_m)
+    window_rad = min(max(reach_rad, config.loop_min_window_rad), config.loop_max_window_rad)
     return window_m, window_rad
+
+
+def _window_reach(covariance: np.ndarray, config: SubmapConfig) -> tuple[float, float]:
+    """``loop_sigmas`` σ of the larger position σ (m) and of the heading (rad) of a
+    relative pose with ``covariance`` (3, 3): what a loop-closure search means to cover."""
+    sigma_xy = math.sqrt(max(covariance[0, 0], covariance[1, 1]))
+    return config.loop_sigmas * sigma_xy, config.loop_sigmas * math.sqrt(covariance[2, 2])
 
 
 def vouched_by_graph(match: LoopMatch, covariance: np.ndarray, window_m: float, window_rad: float,
@@ -593,9 +599,8 @@ def window_covers(covariance: np.ndarray, window_m: float, window_rad: float, co
     ``loop_sigmas`` σ of a relative pose with ``covariance`` (3, 3), as
     :func:`search_window` means it to (False when that clipped it at its maximum); a
     heading window of π covers every heading."""
-    sigma_xy = math.sqrt(max(covariance[0, 0], covariance[1, 1]))
-    heading = config.loop_sigmas * math.sqrt(covariance[2, 2]) <= window_rad or window_rad >= math.pi
-    return config.loop_sigmas * sigma_xy <= window_m and heading
+    reach_m, reach_rad = _window_reach(covariance, config)
+    return reach_m <= window_m and (reach_rad <= window_rad or window_rad >= math.pi)
 
 
 def _record(reference: int, query: int, match: LoopMatch) -> LoopRecord:
