@@ -745,7 +745,8 @@ class ReferenceMap:
         info_scan = info / sigma2
         cov = np.linalg.inv(info_scan + prior_info)
         cov = 0.5 * (cov + cov.T) + np.diag([cfg.min_sigma_xy_m ** 2, cfg.min_sigma_xy_m ** 2, cfg.min_sigma_rad ** 2])
-        degenerate = self._weakness(info) < cfg.degenerate_ratio
+        # the information changed only if the weak prior refined the match again
+        degenerate = (weakness if weak_weight == 0.0 else self._weakness(info)) < cfg.degenerate_ratio
         return MatchResult(pose, cov, score, True, "ok", degenerate, **base)
 
     @staticmethod
