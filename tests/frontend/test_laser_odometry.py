@@ -14,6 +14,7 @@ from bsslam.config import MotionNoiseConfig
 from bsslam.dataset import Frame
 from bsslam.eval import ate
 from bsslam.frontend import FrontendConfig, LaserOdometry
+from bsslam.frontend.scan_matcher import MatchResult
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.se2 import between, compose
 from bsslam.sim import SimConfig, get_world, simulate
@@ -338,7 +339,6 @@ def test_the_matches_learned_from_do_not_depend_on_a_weak_prior_being_offered():
     scan's choice, not the learner's state's. One at or above twice the ratio is."""
     lo = LaserOdometry()
     limit = lo.config.degenerate_ratio
-    from bsslam.frontend.scan_matcher import MatchResult
     def result(weakness, share):
         return MatchResult(np.zeros(3), np.eye(3), 1.0, True, "ok", weakness < limit, weak_prior_weight=share,
                            weakness=weakness)

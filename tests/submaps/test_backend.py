@@ -351,5 +351,6 @@ def test_the_graph_vouches_only_for_matches_whose_window_covered_its_region():
             assert vouched_by_graph(match, cov, window_m, window_rad, cfg) is (covers and expected)
     # a heading window short of π that does not reach 3 σ
     narrow = dataclasses.replace(cfg, loop_max_window_rad=1.0)
-    cov, window_m, window_rad = (np.diag([0.01, 0.01, 0.5 ** 2]), *search_window(np.diag([0.01, 0.01, 0.5 ** 2]), narrow))
+    cov = np.diag([0.01, 0.01, 0.5 ** 2])
+    window_m, window_rad = search_window(cov, narrow)
     assert window_rad == 1.0 and not window_covers(cov, window_m, window_rad, narrow)

@@ -265,9 +265,10 @@ class LaserOdometry:
     def _learns_from(self, match: MatchResult) -> bool:
         """Whether a trusted ``match`` measures the odometry: it constrains every direction
         well enough that no weak prior would touch it (its share, :func:`weak_prior_share`
-        of its weakness, is 0). Decided by the scan alone, so the matches learned from are
-        the same whether or not a weak prior was on offer (none is before the first 20)."""
-        return weak_prior_share(match.weakness, self.config.degenerate_ratio) == 0.0 and not match.degenerate
+        of its weakness, is 0; such a match is never degenerate). Decided by the scan alone,
+        so the matches learned from are the same whether or not a weak prior was on offer
+        (none is before the first 20)."""
+        return weak_prior_share(match.weakness, self.config.degenerate_ratio) == 0.0
 
     def _learn_odometry(self, match: MatchResult, guess: np.ndarray, prior_cov: np.ndarray,
                         odo_cov: np.ndarray, rot: np.ndarray) -> None:

@@ -757,7 +757,6 @@ class ReferenceMap:
         return float(eig[0] / max(eig[1], 1e-12))
 
 
-
 def weak_prior_share(ratio: float, degenerate_ratio: float) -> float:
     """The share of the weak prior (:meth:`ReferenceMap.match`) for a scan of weakness
     ``ratio`` (:meth:`ReferenceMap._weakness`): 1 at or below ``degenerate_ratio``, 0 at
