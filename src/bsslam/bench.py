@@ -85,9 +85,10 @@ class Perturbation:
         return "float32" if self.float32 else f"noise seed {self.seed}"
 
 
-def perturbations(runs: int, sigma_m: float = 0.001) -> list[Perturbation]:
-    """The runs of ``bench --perturb N``: N seeded noise runs (seeds 0 … N−1) and one float32 run."""
-    return [Perturbation(sigma_m, seed) for seed in range(runs)] + [Perturbation(float32=True)]
+def perturbations(runs: int, sigma_m: float = 0.001, first_seed: int = 0) -> list[Perturbation]:
+    """The runs of ``bench --perturb N [--first-seed K]``: N seeded noise runs (seeds K …
+    K+N−1) and one float32 run."""
+    return [Perturbation(sigma_m, seed) for seed in range(first_seed, first_seed + runs)] + [Perturbation(float32=True)]
 
 
 @dataclass(frozen=True)

@@ -690,6 +690,9 @@ def bench(
                                 "Gaussian noise (seeds 0…N−1) and once with float32 ranges, and report "
                                 "the spread of ATE: how much of a figure is the data, how much rounding."),
     perturb_sigma: float = typer.Option(0.001, min=0.0, help="σ of the --perturb noise (m)."),
+    first_seed: int = typer.Option(0, "--first-seed", min=0, help="First seed of the --perturb runs "
+                                   "(seeds K…K+N−1): another sample of runs than the usual one, e.g. "
+                                   "--perturb 10 --first-seed 10 for a change the first ten do not settle."),
     json_file: Optional[Path] = typer.Option(None, "--json", metavar="FILE",
                                              help="Also write every run's figures (and with --perturb the "
                                              "spread) to FILE as JSON; '-' prints only the JSON."),
@@ -709,7 +712,7 @@ def bench(
             # before the runs, which may take an hour: a path that cannot be written
             if json_file.is_dir() or not json_file.resolve().parent.is_dir():
                 raise ConfigError(f"--json {json_file}: not a file in an existing folder")
-        runs = perturbations(perturb, perturb_sigma) if perturb else []
+        runs = perturbations(perturb, perturb_sigma, first_seed) if perturb else []
         with progress_bar(f"bench: {len(found)} log(s)", len(found) * max(len(runs), 1), "runs") as update:
             rows = bench_logs(found, config, steps=steps, workers=workers, scheduler=scheduler, progress=update,
                               perturb=runs)
@@ -743,7 +746,8 @@ def bench(
     if perturb:
         spread = Table("log", "runs", "median ATE m", "min", "max", "float32", "(max−min)/median",
                        "worst/median", "online NEES: median", "outside 95 %",
-                       title=f"ATE over {perturb} runs with {1000 * perturb_sigma:g} mm range noise "
+                       title=f"ATE over {perturb} runs (seeds {first_seed}…{first_seed + perturb - 1}) with "
+                       f"{1000 * perturb_sigma:g} mm range noise "
                        "(target: spread ≤ 0.2, worst ≤ 1.5 × median); the online covariance over them "
                        "and float32, medians of each run's (calibrated: 2.4, 5 %)")
         for st in stability(rows):
