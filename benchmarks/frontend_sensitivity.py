@@ -11,7 +11,7 @@ configuration) over the first ``--scans`` scans of LOG and asks two questions:
   sits on a knife edge: which local minimum of the refinement it ends in turns on a
   tenth of a millimetre. Printed: the share of such matches (> 5 mm, > 20 mm, heading >
   0.05°) and the median spread.
-- **Growth**: every range of scan ``--from-scan`` moved by 1 mm of seeded noise, the rest
+- **Growth**: every return of scan ``--from-scan`` moved by 1 mm of seeded noise, the rest
   of the log as it is; printed: the largest difference of the increments from the
   unperturbed run in each of the following 10-scan windows. A front end whose matches
   were continuous in their input would keep it near the first step's; a chaotic one
@@ -33,6 +33,7 @@ import numpy as np
 from bsslam.config import SLAMConfig
 from bsslam.frontend.laser_odometry import LaserOdometry
 from bsslam.io import open_dataset
+from bsslam.perturbed_dataset import perturb_scan
 from bsslam.trajectory import wrap_angle
 
 #: Copies of the front end matched with nudged guesses before each scan.
@@ -65,9 +66,8 @@ def growth(frames: list, at: int) -> np.ndarray:
         front, out = LaserOdometry(SLAMConfig().frontend), []
         for i, frame in enumerate(frames):
             if perturb and i == at:
-                r = np.asarray(frame.scan.ranges, dtype=float)
-                noisy = r + np.random.default_rng(0).normal(0.0, 0.001, r.shape)
-                frame = dataclasses.replace(frame, scan=dataclasses.replace(frame.scan, ranges=noisy))
+                # as bench --perturb moves a scan: its returns only
+                frame = dataclasses.replace(frame, scan=perturb_scan(frame.scan, np.random.default_rng(0), 0.001))
             step = front.step(frame)
             out.append(np.full(3, np.nan) if step.increment is None else step.increment)
         return np.array(out)

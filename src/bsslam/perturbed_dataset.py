@@ -14,6 +14,7 @@ from typing import Iterator
 import numpy as np
 
 from bsslam.dataset import Dataset, Frame
+from bsslam.scan.laser_scan import LaserScan
 
 
 class PerturbedDataset:
@@ -47,13 +48,19 @@ class PerturbedDataset:
     def __iter__(self) -> Iterator[Frame]:
         rng = np.random.default_rng(self.seed)
         for frame in self._dataset:
-            scan = frame.scan
-            ranges = scan.ranges.copy()
-            hit = np.isfinite(ranges) & (ranges > 0) & (ranges < scan.max_range)
-            if self.sigma_m > 0:
-                noise = rng.standard_normal(ranges.shape[0])[hit] * self.sigma_m
-                # a return stays a return: never at or below zero, never at max_range
-                ranges[hit] = np.clip(ranges[hit] + noise, 1e-3, np.nextafter(scan.max_range, 0))
-            if self.float32:
-                ranges[hit] = ranges[hit].astype(np.float32).astype(float)
-            yield dataclasses.replace(frame, scan=dataclasses.replace(scan, ranges=ranges))
+            yield dataclasses.replace(frame, scan=perturb_scan(frame.scan, rng, self.sigma_m, self.float32))
+
+
+def perturb_scan(scan: LaserScan, rng: np.random.Generator, sigma_m: float, float32: bool = False) -> LaserScan:
+    """``scan`` with its returns (finite ranges below ``max_range``) moved by Gaussian noise
+    of ``sigma_m`` (m; 0 for none) drawn from ``rng`` (one draw per beam, returns or not)
+    and/or rounded to float32; no-return and invalid beams as they are."""
+    ranges = scan.ranges.copy()
+    hit = np.isfinite(ranges) & (ranges > 0) & (ranges < scan.max_range)
+    if sigma_m > 0:
+        noise = rng.standard_normal(ranges.shape[0])[hit] * sigma_m
+        # a return stays a return: never at or below zero, never at max_range
+        ranges[hit] = np.clip(ranges[hit] + noise, 1e-3, np.nextafter(scan.max_range, 0))
+    if float32:
+        ranges[hit] = ranges[hit].astype(np.float32).astype(float)
+    return dataclasses.replace(scan, ranges=ranges)
