@@ -363,14 +363,16 @@ def test_bench_perturb_runs_seeded_noise_and_float32_and_reports_the_spread(tmp_
 
     log = write_carmen_log(tmp_path / "one.clf", "mixed", 1, 10)
     out = invoke("bench", log, "--workers", 1, "--perturb", 2, "--steps", 8, "-q").output
-    inputs = [line.split("│")[2].strip() for line in out.splitlines() if "one.clf" in line and "noise" in line
-              or "one.clf" in line and "float32" in line]
-    assert inputs[:3] == ["noise seed 0", "noise seed 1", "float32"]
+    def inputs(output):
+        return [line.split("│")[2].strip() for line in output.splitlines()
+                if "one.clf" in line and ("noise" in line or "float32" in line)]
+    assert inputs(out)[:3] == ["noise seed 0", "noise seed 1", "float32"]
     assert "ATE over 2 runs (seeds 0…1) with 1 mm range noise" in out
     later = invoke("bench", log, "--workers", 1, "--perturb", 2, "--first-seed", 10, "--steps", 8, "-q").output
-    assert [line.split("│")[2].strip() for line in later.splitlines() if "one.clf" in line and "noise" in line] \
-        == ["noise seed 10", "noise seed 11"]
+    assert inputs(later)[:3] == ["noise seed 10", "noise seed 11", "float32"]
     assert "(seeds 10…11)" in later
+    result = runner.invoke(app, ["bench", str(log), "--first-seed", "10"])
+    assert result.exit_code == 2 and "--perturb" in result.output
     # the same seed gives the same run; the noise does move the result
     from bsslam.config import SLAMConfig
     a, b = (bench_log(log, SLAMConfig(), steps=8, perturbation=Perturbation(0.001, 0)) for _ in range(2))

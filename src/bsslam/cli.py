@@ -687,7 +687,8 @@ def bench(
     workers: Optional[int] = typer.Option(None, help=WORKERS_HELP),
     scheduler: Optional[str] = typer.Option(None, help=SCHEDULER_HELP),
     perturb: int = typer.Option(0, min=0, help="Run each log N times with every range moved by seeded "
-                                "Gaussian noise (seeds 0…N−1) and once with float32 ranges, and report "
+                                "Gaussian noise (seeds 0…N−1, or from --first-seed) and once with float32 "
+                                "ranges, and report "
                                 "the spread of ATE: how much of a figure is the data, how much rounding."),
     perturb_sigma: float = typer.Option(0.001, min=0.0, help="σ of the --perturb noise (m)."),
     first_seed: int = typer.Option(0, "--first-seed", min=0, help="First seed of the --perturb runs "
@@ -712,6 +713,8 @@ def bench(
             # before the runs, which may take an hour: a path that cannot be written
             if json_file.is_dir() or not json_file.resolve().parent.is_dir():
                 raise ConfigError(f"--json {json_file}: not a file in an existing folder")
+        if first_seed and not perturb:
+            raise ConfigError("--first-seed chooses the seeds of the --perturb runs: give --perturb N too")
         runs = perturbations(perturb, perturb_sigma, first_seed) if perturb else []
         with progress_bar(f"bench: {len(found)} log(s)", len(found) * max(len(runs), 1), "runs") as update:
             rows = bench_logs(found, config, steps=steps, workers=workers, scheduler=scheduler, progress=update,
