@@ -24,7 +24,6 @@ import numpy as np
 import bsslam.submaps.backend as backend
 from bsslam.config import SLAMConfig
 from bsslam.se2 import between
-from bsslam.submaps.pose_graph import PoseGraph
 from bsslam.trajectory import wrap_angle
 from graph_consistency import reference_bases, run_log
 
@@ -32,25 +31,23 @@ from graph_consistency import reference_bases, run_log
 def run_recording_candidates(log: Path, seed: int | None, config: SLAMConfig):
     """One run; returns it and every candidate as (reference submap, query submap, guess
     (3,), :class:`~bsslam.submaps.loop_closure.LoopMatch`)."""
-    candidates, pair = [], [(-1, -1)]
-    match, relative = backend.match_submaps, PoseGraph.relative
-
-    def recording_relative(graph, i, j):
-        # the backend asks the graph for the pair's relative pose just before it matches them
-        pair[0] = (int(i), int(j))
-        return relative(graph, i, j)
+    recorded = []
+    match = backend.match_submaps
 
     def recording_match(reference, query, guess, covariance, window_m, window_rad, cfg):
         result = match(reference, query, guess, covariance, window_m, window_rad, cfg)
-        candidates.append((*pair[0], np.array(guess, dtype=float), result))
+        recorded.append((reference, query, np.array(guess, dtype=float), result))
         return result
 
-    backend.match_submaps, PoseGraph.relative = recording_match, recording_relative
+    backend.match_submaps = recording_match
     try:
         result = run_log(log, seed, config)
     finally:
-        backend.match_submaps, PoseGraph.relative = match, relative
-    return result, candidates
+        backend.match_submaps = match
+    # The pair is known by the submaps' shapes: the end-of-run sweep asks the graph for
+    # every pair's guess first and matches them afterwards, on threads.
+    submap_of = {id(f.shape): f.index for f in result.submaps.frozen}
+    return result, [(submap_of[id(r)], submap_of[id(q)], guess, m) for r, q, guess, m in recorded]
 
 
 def main() -> None:
