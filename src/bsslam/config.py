@@ -613,6 +613,8 @@ MAX_SEARCH_WINDOW_M = 20.0
 MAX_STEPS_PER_WINDOW = 90
 MAX_FINE_PER_COARSE = 20
 MAX_FIELD_CELLS = 8000     # per side: 64 M float32 cells, 256 MB
+#: a loop-closure search's window (m): it runs on the default front end's coarse grid
+MAX_LOOP_WINDOW_M = min(MAX_SEARCH_WINDOW_M, MAX_STEPS_PER_WINDOW * FrontendConfig.coarse_step_m)
 
 
 @dataclass(frozen=True)
@@ -704,7 +706,7 @@ class SubmapConfig:
             the filter admits;
         loop_max_window_m: … and at most this far (m), bounding the search's cost (which
             grows with the window's area: about 1 s per candidate at 12 m; at most
-            ``MAX_SEARCH_WINDOW_M``). A window narrower than the drift cannot hold the true
+            ``MAX_LOOP_WINDOW_M``, 18 m). A window narrower than the drift cannot hold the true
             alignment, and then a copy of the structure within it (a facade, a row of
             trees) is what the search finds; a wider one also holds more rivals (turned
             ones among them) that the checks must tell from the truth. On the campus, ten
@@ -868,9 +870,12 @@ class SubmapConfig:
         _check(0 <= self.seam_drift_rad_per_m <= 0.1, "submaps.seam_drift_rad_per_m must be in [0, 0.1] rad/m")
         _check(0 < self.point_spacing_m <= 1.0, "submaps.point_spacing_m must be in (0, 1] m")
         _check(self.loop_sigmas > 0, "submaps.loop_sigmas must be > 0")
-        # The window is the correlative search's, bounded like the front end's.
-        _check(0 < self.loop_min_window_m <= self.loop_max_window_m <= MAX_SEARCH_WINDOW_M,
-               f"submaps.loop_min_window_m ≤ loop_max_window_m must be in (0, {MAX_SEARCH_WINDOW_M:g}] m")
+        # The window is the correlative search's, on the default front end's coarse grid
+        # (loop_closure.matcher_config): bounded here, not at the first loop closure.
+        _check(0 < self.loop_min_window_m <= self.loop_max_window_m <= MAX_LOOP_WINDOW_M,
+               f"submaps.loop_min_window_m ≤ loop_max_window_m must be in (0, {MAX_LOOP_WINDOW_M:g}] m (the "
+               f"correlative search's {MAX_STEPS_PER_WINDOW} coarse offsets of {FrontendConfig.coarse_step_m:g} m "
+               f"per side)")
         _check(0 < self.loop_min_window_rad <= self.loop_max_window_rad <= math.pi,
                "submaps.loop_min_window_rad ≤ loop_max_window_rad must be in (0, π]")
         _check(isinstance(self.loop_max_candidates, int) and 0 <= self.loop_max_candidates <= 100,

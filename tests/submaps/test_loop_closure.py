@@ -326,12 +326,14 @@ def test_random_offsets_within_the_window_are_recovered(overlapping, dx, dy, dph
     assert dist < 0.03 and turn < math.radians(1.0)
 
 
-@pytest.mark.parametrize("field, value", [("loop_max_window_m", 25.0), ("loop_inlier_distance_m", 2.0),
+@pytest.mark.parametrize("field, value", [("loop_max_window_m", 25.0), ("loop_max_window_m", 20.0),
+                                          ("loop_inlier_distance_m", 2.0),
                                           ("loop_search_points", 10), ("loop_min_information_ratio", 1.5),
                                           ("loop_distinct_m", 0.0), ("loop_support_submaps", -1),
                                           ("loop_support_submaps", 2.5), ("loop_max_wall_sigma_m", -0.1)])
 def test_config_bounds(field, value):
-    """The window is the correlative search's (≤ 20 m); the inlier gate within the overlap one."""
+    """The window is the correlative search's (≤ 18 m: 90 coarse offsets of 0.2 m); the inlier
+    gate within the overlap one."""
     with pytest.raises(ConfigError):
         SubmapConfig(**{field: value})
 

@@ -205,7 +205,7 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
             refinement's weak prior (it decides nothing the walls fix); not part of the
             returned covariance.
         window_m, window_rad: the search's half-widths (m, rad); at most
-            ``MAX_SEARCH_WINDOW_M`` (20 m); a rotation window of π or more searches all
+            ``MAX_LOOP_WINDOW_M`` (18 m); a rotation window of π or more searches all
             headings.
 
     Returns:
