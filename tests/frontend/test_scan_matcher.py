@@ -463,3 +463,26 @@ def test_alternative_lies_outside_the_admitted_region(seed):
     same, same_score = reference.alternative(cur, guess, best, 0.3, math.radians(5.0),
                                              admitted=(best, np.linalg.inv(covariance), -1.0))
     assert np.array_equal(same, near) and same_score == near_score
+
+
+def _open_ground_scan(near_beams: int) -> LaserScan:
+    """A 180° scan with an 80 m laser: ``near_beams`` returns at 5–6 m (a bush), the rest
+    off buildings 40–60 m away."""
+    angles = np.radians(np.arange(-90.0, 90.5, 1.0))
+    ranges = 40.0 + 20.0 * np.abs(np.sin(3.0 * angles))
+    ranges[:near_beams] = 5.0 + 0.01 * np.arange(near_beams)
+    return LaserScan(0.0, angles, ranges, 80.0)
+
+
+def test_a_sparse_scan_keeps_its_far_returns():
+    """Fewer than min_points returns within max_range_m (counted per scan_voxel_m cell):
+    every return up to the sensor's range is kept; with the option off, only the near ones."""
+    sparse = _open_ground_scan(10)
+    assert scan_points(sparse, None, CFG).shape == (181, 2)
+    assert scan_points(sparse, None, dataclasses.replace(CFG, full_range_when_sparse=False)).shape == (10, 2)
+    # enough near cells: the far returns stay out, as without the option
+    dense = _open_ground_scan(60)
+    assert scan_points(dense, None, CFG).shape == (60, 2)
+    # a scan whose every return is near stays as it is
+    near = LaserScan(0.0, np.radians([0.0, 1.0]), np.array([1.0, 2.0]), 80.0)
+    assert scan_points(near, None, CFG).shape == (2, 2)

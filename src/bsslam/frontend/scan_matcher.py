@@ -72,13 +72,27 @@ def scan_points(scan: LaserScan, laser_offset: np.ndarray | None, config: Fronte
 
     Beams are dropped as :func:`bsslam.scan.valid_beams` drops them (NaN/inf, no return at
     or above the scan's ``max_range``, at or below ``min_range_m``) and at or beyond
-    ``max_range_m``; the laser offset is applied.
+    ``max_range_m`` — unless fewer than ``min_points`` cells of ``scan_voxel_m`` hold a
+    beam within it and ``full_range_when_sparse`` is set, when every return up to the
+    scan's ``max_range`` is kept (open ground: the far walls are all there is to match).
+    The laser offset is applied.
     """
     ranges = scan.ranges
     # valid_beams' rules in two comparisons (NaN compares False, ±inf fails one of them);
     # tests/frontend check the two agree.
-    mask = (ranges > config.min_range_m) & (ranges < min(scan.max_range, config.max_range_m))
-    angles, ranges = scan.angles[mask], ranges[mask]
+    valid = ranges > config.min_range_m
+    mask = valid & (ranges < min(scan.max_range, config.max_range_m))
+    points = _end_points(scan.angles[mask], ranges[mask], laser_offset)
+    if (config.full_range_when_sparse and config.max_range_m < scan.max_range
+            and voxel_thin(points, config.scan_voxel_m).shape[0] < config.min_points):
+        mask = valid & (ranges < scan.max_range)
+        points = _end_points(scan.angles[mask], ranges[mask], laser_offset)
+    return points
+
+
+def _end_points(angles: np.ndarray, ranges: np.ndarray, laser_offset: np.ndarray | None) -> np.ndarray:
+    """(m, 2) end points (m) of beams at ``angles`` (rad) and ``ranges`` (m) in the robot
+    frame, the laser at ``laser_offset`` (3,; the robot's origin when None)."""
     if laser_offset is None:
         ox, oy, otheta = 0.0, 0.0, 0.0
     else:
