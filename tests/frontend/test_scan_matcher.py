@@ -16,7 +16,7 @@ from bsslam.frontend.scan_matcher import (LikelihoodField, _distinct_maxima, _kd
                                           _search_grid, transform_points, weak_prior_share)
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.se2 import between
-from bsslam.sim import Arc, SimConfig, WallSet, get_world, simulate
+from bsslam.sim import Arc, Segment, SimConfig, WallSet, get_world, simulate
 
 from .cases import ANGLES, cast_scan, corridor, perturbation, pose_error, room
 
@@ -211,6 +211,58 @@ def test_unrelated_scan_is_not_trusted():
     other = scan_points(cast_scan(round_room, np.array([0.5, 0.0, 0.7]), rng, 0.005), None, CFG)
     result = match_scan(ref, other, np.zeros(3))
     assert not result.ok and result.reason in ("poor_score", "too_few_correspondences")
+
+
+def _symmetric_room() -> WallSet:
+    """A rectangular room with two pillars, the same after a half turn about the origin."""
+    return WallSet((
+        Segment((-4.0, -3.0), (4.0, -3.0)), Segment((4.0, -3.0), (4.0, 3.0)),
+        Segment((4.0, 3.0), (-4.0, 3.0)), Segment((-4.0, 3.0), (-4.0, -3.0)),
+        Segment((1.0, 1.0), (1.6, 1.0)), Segment((1.6, 1.0), (1.6, 1.5)), Segment((1.6, 1.5), (1.0, 1.5)),
+        Segment((1.0, 1.5), (1.0, 1.0)),
+        Segment((-1.0, -1.0), (-1.6, -1.0)), Segment((-1.6, -1.0), (-1.6, -1.5)),
+        Segment((-1.6, -1.5), (-1.0, -1.5)), Segment((-1.0, -1.5), (-1.0, -1.0)),
+    ))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_correlative_start_in_a_twin_basin_loses_to_the_guess(seed):
+    """In a room the same after a half turn, a scan fits its twin pose as well as its own;
+    when the correlative search starts the refinement at the twin, the refinement from the
+    guess explains the scan as well and agrees with the prior, so it wins."""
+    rng = np.random.default_rng(seed)
+    walls = _symmetric_room()
+    around = np.radians(np.arange(0.0, 360.0, 0.5))
+    ref = scan_points(cast_scan(walls, np.zeros(3), rng, 0.005, angles=around), None, CFG)
+    truth = np.array([rng.uniform(-2.5, -2.0), rng.uniform(0.5, 1.5), rng.uniform(-1.0, 1.0)])
+    cur = scan_points(cast_scan(walls, truth, rng, 0.005), None, CFG)
+    twin = np.array([-truth[0], -truth[1], truth[2] + math.pi])
+
+    class Fooled(ReferenceMap):
+        def correlative(self, points, guess, coarse=None):
+            return twin.copy(), 1.0
+
+    fooled = Fooled(ref)
+    guess = truth + np.array([0.05, -0.04, math.radians(2.0)])
+    # the premise: from the twin, the refinement stays at the twin and fits as well
+    prior_info = np.linalg.inv(np.diag([0.3 ** 2, 0.3 ** 2, math.radians(10.0) ** 2]))
+    at_twin, _, r_twin, _, _ = fooled.refine(cur, twin, guess, prior_info)
+    assert np.hypot(*(at_twin[:2] - twin[:2])) < 0.05
+    result = fooled.match(cur, guess, np.linalg.inv(prior_info))
+    assert result.ok
+    err = pose_error(result.pose, truth)
+    assert np.hypot(err[0], err[1]) < 0.01 and abs(err[2]) < 0.003
+
+
+def test_the_truncated_cost_caps_each_point_and_charges_the_unmatched():
+    reference = ReferenceMap(scan_points(cast_scan(room(), np.zeros(3), np.random.default_rng(0), 0.005), None, CFG))
+    cap = CFG.inlier_distance_m
+    sigma2 = CFG.range_sigma_m ** 2 * CFG.covariance_inflation
+    residuals = np.array([0.01, -0.02, 0.5])
+    pose, mean = np.array([0.1, 0.0, 0.2]), np.array([0.0, 0.0, 0.2 - 2 * math.pi])
+    information = np.diag([4.0, 1.0, 9.0])
+    expected = (0.01 ** 2 + 0.02 ** 2 + cap ** 2 + 2 * cap ** 2) / sigma2 + 4.0 * 0.1 ** 2
+    assert reference.cost(5, residuals, pose, mean, information) == pytest.approx(expected, rel=1e-12)
 
 
 def test_no_return_and_invalid_beams_are_dropped():
