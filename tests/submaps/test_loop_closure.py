@@ -7,7 +7,6 @@ B-splines: the curves are the same, only expressed elsewhere).
 
 import dataclasses
 import math
-import time
 
 import numpy as np
 import pytest
@@ -196,17 +195,6 @@ def test_drifted_walls_stay_within_the_loop_closures_covariance():
         assert np.hypot(*(on.relative - truth)[:2]) < 0.01
     assert chi2.ppf(0.001, 2 * draws) < with_walls < chi2.ppf(0.999, 2 * draws)
     assert alignment_only > 10 * chi2.ppf(0.999, 2 * draws)
-
-
-def test_timing_of_one_wide_match(overlapping):
-    """Not an assertion: prints the time of one match of two ~20 m submaps, ±3 m / ±30°."""
-    reference, query = overlapping
-    guess = compose(TRUE, np.array([1.2, -0.9, math.radians(15.0)]))
-    match_submaps(reference, query, guess, GUESS_COV, 3.0, math.radians(30.0), CONFIG)   # compile, warm
-    t0 = time.perf_counter()
-    match_submaps(reference, query, guess, GUESS_COV, 3.0, math.radians(30.0), CONFIG)
-    print(f"\nmatch_submaps, {reference.points.shape[0]} / {query.points.shape[0]} points, ±3 m ±30°: "
-          f"{time.perf_counter() - t0:.3f} s")
 
 
 def test_non_overlapping_submaps_are_rejected():
