@@ -30,6 +30,7 @@ from bsslam.blas_threads import one_blas_thread
 from bsslam.compiled import kernel_interrupts
 from bsslam.config import SLAMConfig
 from bsslam.dataset import Frame, SkipCounter
+from bsslam.deskewed_dataset import deskewed, odometry_velocity
 from bsslam.errors import InputError
 from bsslam.frontend import FrontendStep, LaserOdometry, UpdateSchedule
 from bsslam.input_limits import InputLimits, OdometryGate, angles_problem, invalid_ranges, offset_problem
@@ -326,7 +327,10 @@ class Mapper:
         """Process one scan; returns the robot's pose and covariance at it.
 
         Args:
-            scan: the laser scan, bearings in the laser frame.
+            scan: the laser scan, bearings in the laser frame; a scan with a sweep time
+                (``LaserScan.sweep_time_s``) is first corrected for the robot's motion
+                during it (:func:`bsslam.scan.deskew`, the velocity from the odometry since
+                the previous scan).
             odometry: (3,) the robot's odometry *pose* (x m, y m, φ rad) at the scan, in the
                 odometry's own frame (only increments between scans are used).
             stamp: the scan's time (s); ``scan.stamp`` by default.
@@ -340,7 +344,10 @@ class Mapper:
         odometry = self._odometry_pose(odometry, odometry_increment)
         stamp = float(scan.stamp if stamp is None else stamp)
         offset = np.zeros(3) if laser_offset is None else _pose(laser_offset, "laser_offset")
-        return self.add_frame(self._checked(Frame(stamp, odometry, scan, offset)))
+        previous_stamp, previous_odometry = self._last_stamp, self._odometry
+        frame = self._checked(Frame(stamp, odometry, scan, offset))
+        velocity = odometry_velocity(previous_odometry, previous_stamp, frame.odometry, frame.stamp, self.limits)
+        return self.add_frame(deskewed(frame, velocity))
 
     def _checked(self, frame: Frame) -> Frame:
         """The public API's boundary: the same physical limits as the log readers

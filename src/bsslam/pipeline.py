@@ -14,6 +14,7 @@ from typing import Callable, Iterator
 from bsslam.compiled import kernel_interrupts
 from bsslam.config import SLAMConfig
 from bsslam.dataset import Dataset
+from bsslam.deskewed_dataset import DeskewedDataset
 from bsslam.errors import MemoryBudgetError
 from bsslam.helper_process import HelperProcess, Prefetched, can_prefetch
 from bsslam.mapper import Mapper, Progress, RunResult, Viewer, _no_progress, relocalize
@@ -64,6 +65,7 @@ def run_dataset(dataset: Dataset, config: SLAMConfig, *, steps: int | None = Non
             ``checkpoint`` is then called on the frames that bring the front end's state,
             asked for when its ``due(next_frame)`` (every frame without one) says so.
     """
+    dataset = DeskewedDataset(dataset, config.input)    # scans taken over a sweep, as if at one instant
     if mapper is None:
         mapper = Mapper(config, viewer=viewer, slam=slam)
     elif viewer is not None:

@@ -32,12 +32,12 @@ class Bag:
             fields["seq"] = 0
         return self._type("std_msgs/msg/Header")(**fields)
 
-    def scan(self, t, ranges=RANGES, topic="/scan", frame="laser", increment=0.25, angle_max=None):
+    def scan(self, t, ranges=RANGES, topic="/scan", frame="laser", increment=0.25, angle_max=None, time_increment=0.0):
         # angle_max as drivers write it: the last beam's bearing (None); a value to corrupt it
         last = -1.5 + increment * (len(ranges) - 1)
         msg = self._type(LASER)(header=self.header(t, frame), angle_min=-1.5,
                                 angle_max=last if angle_max is None else angle_max,
-                                angle_increment=increment, time_increment=0.0, scan_time=0.1,
+                                angle_increment=increment, time_increment=time_increment, scan_time=0.1,
                                 range_min=0.1, range_max=30.0, ranges=np.asarray(ranges, dtype=np.float32),
                                 intensities=np.zeros(0, dtype=np.float32))
         self.messages.append((topic, LASER, t, msg))

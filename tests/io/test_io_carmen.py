@@ -81,6 +81,21 @@ def test_reader_config_validates():
         ReaderConfig(laser_message="LASER9")
     with pytest.raises(ConfigError):
         ReaderConfig(code_min_share=0)
+    for sweep in (-0.001, 2.0, math.nan):
+        with pytest.raises(ConfigError, match="carmen_sweep_time_s"):
+            ReaderConfig(carmen_sweep_time_s=sweep)
+
+
+def test_scans_carry_the_configured_sweep_time(tmp_path):
+    path = write_log(tmp_path, [odom([0, 0, 0], 10.0), flaser([1.5] * 180, 10.0, [0.0, 0.0, 0.0])])
+    (frame,) = list(CarmenReader(path))
+    assert frame.scan.sweep_time_s == pytest.approx(1 / 150)     # a SICK LMS's 180°
+    (frame,) = list(CarmenReader(path, config=ReaderConfig(carmen_sweep_time_s=0.0)))
+    assert frame.scan.sweep_time_s == 0.0
+    # half-degree scans are interlaced over two turns of the mirror: no linear sweep
+    path = write_log(tmp_path, [odom([0, 0, 0], 10.0), flaser([1.5] * 361, 10.0, [0.0, 0.0, 0.0])])
+    (frame,) = list(CarmenReader(path))
+    assert frame.scan.sweep_time_s == 0.0
 
 
 # -- round trips -----------------------------------------------------------------------

@@ -55,6 +55,17 @@ def test_negative_increment_is_reversed_into_increasing_bearings(tmp_path):
     np.testing.assert_array_equal(frame.scan.ranges, [3.0, 2.0, 1.0])
 
 
+def test_sweep_time_comes_from_time_increment_in_the_order_of_measurement(tmp_path):
+    bag = Bag("ros2-sqlite3")
+    bag.odom(0.0, 0.0, 0.0, 0.0)
+    bag.scan(0.2, ranges=[1.0, 2.0, 3.0], time_increment=0.001)
+    bag.scan(0.5, ranges=[1.0, 2.0, 3.0], increment=-0.5, time_increment=0.001)   # measured from the left
+    bag.scan(0.7, ranges=[1.0, 2.0, 3.0])                                        # the driver does not say
+    bag.odom(1.0, 0.0, 0.0, 0.0)
+    sweeps = [frame.scan.sweep_time_s for frame in RosbagReader(bag.write(tmp_path / "b"))]
+    np.testing.assert_allclose(sweeps, [0.002, -0.002, 0.0], rtol=1e-6)
+
+
 def test_topic_ambiguity_lists_candidates_and_naming_resolves_it(tmp_path):
     bag = standard_bag("ros2-sqlite3")
     bag.scan(1.7, topic="/rear_scan")

@@ -303,7 +303,9 @@ class CarmenReader:
         if self.laser_message is not None and kind != self.laser_message:
             self._issues.ignore()  # another laser stream (often the same laser twice)
             return
-        msg = _increasing(LASER_PARSERS[kind](fields))
+        msg = LASER_PARSERS[kind](fields)
+        sweep = _sweep_time(msg.angles, self.config.carmen_sweep_time_s)
+        msg = _increasing(msg)
         reason = angles_problem(msg.angles, self.config.limits)
         if reason is not None:
             self._issues.problem(reason, number, f"{kind} with {msg.angles.size} beams")
@@ -319,7 +321,7 @@ class CarmenReader:
         if negative:
             self._issues.problem("negative ranges (kept as invalid beams)", number)
         threshold = no_return_threshold(self.config, msg.max_range_m, self.no_return_code_m)
-        scan = LaserScan(msg.stamp, msg.angles, mark_no_return(ranges, threshold), threshold)
+        scan = LaserScan(msg.stamp, msg.angles, mark_no_return(ranges, threshold), threshold, sweep)
         offset = self._laser_offset(msg, state, number)
         if msg.robot_pose is not None:
             yield number, Frame(msg.stamp, msg.robot_pose, scan, offset)
@@ -387,6 +389,19 @@ class CarmenReader:
             return relative
         return state.param_offset(msg.kind)
 
+
+def _sweep_time(angles: np.ndarray, sweep_s: float) -> float:
+    """The sweep time of a CARMEN scan with bearings ``angles`` (rad, in the order the
+    message lists them, which is the order they were measured in): ``sweep_s``, negative
+    when the bearings decrease; 0 for a scan finer than one beam per degree, which a SICK
+    LMS measures over several turns of its mirror, interlaced, not in the order of its
+    bearings (the linear sweep of :func:`bsslam.scan.deskew` does not describe it)."""
+    if angles.size < 2:
+        return 0.0
+    step = float(angles[1] - angles[0])
+    if abs(step) < math.radians(1.0) * (1 - 1e-6):
+        return 0.0
+    return sweep_s if step > 0 else -sweep_s
 
 def _increasing(msg: LaserMessage) -> LaserMessage:
     """``msg`` with its beams in increasing bearing order (a negative angular resolution

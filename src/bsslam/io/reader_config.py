@@ -6,6 +6,7 @@ These describe the *input data*, not the filter, so they live apart from
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from bsslam.errors import ConfigError
@@ -53,6 +54,13 @@ class ReaderConfig:
         limits: physical limits every scan and odometry pose is checked against (beams
             per scan, plausible speed and turn rate, coordinate range; see
             :class:`~bsslam.input_limits.InputLimits`).
+        carmen_sweep_time_s: CARMEN: the time a laser takes from its first beam to its
+            last (s), which the log does not record; ROS bags give it in each message
+            (``time_increment``). Default 1/150 s, the 180° of a SICK LMS 2xx, whose mirror
+            turns at 75 Hz (the laser of the classic CARMEN logs); 0 takes every scan as
+            instantaneous. Scans finer than one beam per degree are taken as instantaneous
+            whatever this says: the LMS interlaces them over several turns of its mirror.
+            See :func:`bsslam.scan.deskew`.
     """
 
     no_return_m: float = 80.0
@@ -64,6 +72,7 @@ class ReaderConfig:
     tf_odom_frame: str = "odom"
     tf_base_frame: str | None = None
     limits: InputLimits = InputLimits()
+    carmen_sweep_time_s: float = 1.0 / 150.0
 
     def __post_init__(self) -> None:
         if not self.no_return_m > 0:
@@ -74,6 +83,8 @@ class ReaderConfig:
             raise ConfigError(f"code_min_share must be in (0, 1], got {self.code_min_share}")
         if self.code_detection_scans < 1:
             raise ConfigError(f"code_detection_scans must be ≥ 1, got {self.code_detection_scans}")
+        if not (math.isfinite(self.carmen_sweep_time_s) and 0.0 <= self.carmen_sweep_time_s <= 1.0):
+            raise ConfigError(f"carmen_sweep_time_s must be in [0, 1] s, got {self.carmen_sweep_time_s}")
         if not isinstance(self.limits, InputLimits):
             raise ConfigError(f"limits must be an InputLimits, got {type(self.limits).__name__}")
         if self.laser_message is not None and self.laser_message not in CARMEN_LASER_MESSAGES:

@@ -32,6 +32,7 @@ scan raises ``InputError`` in both modes.
 from __future__ import annotations
 
 import contextlib
+import math
 import logging
 import os
 from pathlib import Path
@@ -237,14 +238,20 @@ class RosbagReader:
             return None
         ranges, _, _ = invalid_ranges(ranges)   # negative → NaN; NaN is a failed beam (REP 117)
         angles = float(msg.angle_min) + float(msg.angle_increment) * np.arange(ranges.size)
+        # the time from the first beam to the last, in the message's order (0: not given)
+        sweep = float(msg.time_increment) * (ranges.size - 1)
+        if not (math.isfinite(sweep) and abs(sweep) <= 1.0):
+            self._issues.problem("implausible time_increment (scan taken as instantaneous)", index,
+                                 f"{self.scan_topic}: time_increment {msg.time_increment}")
+            sweep = 0.0
         if msg.angle_increment < 0:  # a laser mounted upside down: keep bearings increasing
-            angles, ranges = angles[::-1], ranges[::-1]
+            angles, ranges, sweep = angles[::-1], ranges[::-1], -sweep
         if msg.range_min > 0:
             with np.errstate(invalid="ignore"):
                 ranges = np.where(ranges < msg.range_min, np.nan, ranges)
         threshold = no_return_threshold(self.config, float(msg.range_max))
         try:
-            return LaserScan(_stamp(msg.header, bag_ns), angles, mark_no_return(ranges, threshold), threshold)
+            return LaserScan(_stamp(msg.header, bag_ns), angles, mark_no_return(ranges, threshold), threshold, sweep)
         except InputError as exc:
             self._issues.problem("invalid scan geometry", index, str(exc))
             return None

@@ -3,6 +3,7 @@
 Imports numpy, bsslam.spline and the configuration only.
 """
 
+from bsslam.scan.deskew import deskew
 from bsslam.scan.laser_scan import LaserScan
 from bsslam.scan.observed import ObservedSpline, ScanFeatures, extract_splines
 from bsslam.scan.segment import (
@@ -21,6 +22,7 @@ __all__ = [
     "ObservedSpline",
     "ScanFeatures",
     "beams_to_points",
+    "deskew",
     "extract_splines",
     "segment_points",
     "segment_points_counted",
