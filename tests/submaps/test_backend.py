@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
+import bsslam.submaps.backend as backend
 from bsslam.config import SLAMConfig, SubmapConfig
 from bsslam.experiments.consistency import simulation_config
 from bsslam.mapper import Mapper
@@ -129,6 +130,35 @@ def test_the_end_of_run_sweep_adds_the_loop_closures_the_online_matching_missed(
         error[2] = np.remainder(error[2] + np.pi, 2 * np.pi) - np.pi
         assert error @ np.linalg.solve(loop.covariance, error) < chi2.ppf(0.999, 3), (loop, error)
     assert _final_pose_nees(swept, data.ground_truth) < chi2.ppf(0.9973, 3)
+
+
+@pytest.mark.parametrize("clipped", [False, True])
+def test_the_sweep_refuses_a_match_the_graph_can_judge_and_does_not_expect(monkeypatch, clipped):
+    """Every match of the end-of-run sweep moved 3 m off (verified, as a repeated wall can
+    make it) and outside the graph's 99 % region: where the search window covered the
+    graph's region the graph can judge, and with no later submaps to vote the sweep refuses
+    each (counted as ``sweep_unexpected``), keeping the online loop closures alone; a match
+    found in a window clipped short of the region is taken as before."""
+    data = simulate(get_world("rounded-room"), SimConfig(), seed=3)
+    mapper = Mapper(_config(loop_max_candidates=1))
+    for frame in data:
+        mapper.add_frame(frame)
+    online = len(mapper.slam.loops)
+    real = backend.match_submaps
+
+    def wrong(*args):
+        match = real(*args)
+        return dataclasses.replace(match, relative=match.relative + np.array([3.0, 0.0, 0.0]), expected=False)
+
+    monkeypatch.setattr(backend, "match_submaps", wrong)
+    monkeypatch.setattr(backend, "window_covers", lambda *args: not clipped)
+    result = mapper.finish(ground_truth=data.ground_truth)
+    refused = result.totals.get("loop_rejected_sweep_unexpected", 0)
+    if clipped:
+        assert refused == 0 and result.totals["loop_sweep_closures"] >= 3
+    else:
+        assert refused >= 3 and result.totals["loop_sweep_closures"] == 0
+        assert len(result.submaps.loops) == online
 
 
 def test_live_memory_is_counted_and_within_the_budget(double_loop):
