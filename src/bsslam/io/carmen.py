@@ -403,6 +403,7 @@ def _sweep_time(angles: np.ndarray, sweep_s: float) -> float:
         return 0.0
     return sweep_s if step > 0 else -sweep_s
 
+
 def _increasing(msg: LaserMessage) -> LaserMessage:
     """``msg`` with its beams in increasing bearing order (a negative angular resolution
     — a laser mounted upside down — lists them backwards)."""

@@ -32,8 +32,8 @@ scan raises ``InputError`` in both modes.
 from __future__ import annotations
 
 import contextlib
-import math
 import logging
+import math
 import os
 from pathlib import Path
 from typing import Any, Iterator

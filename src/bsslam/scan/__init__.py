@@ -1,6 +1,6 @@
 """Scans and their segmentation into observed splines (spec §3, paper §III-A).
 
-Imports numpy, bsslam.spline and the configuration only.
+Imports numpy, bsslam.spline, the pose algebra (bsslam.se2) and the configuration only.
 """
 
 from bsslam.scan.deskew import deskew

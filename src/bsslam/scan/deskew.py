@@ -5,7 +5,8 @@ about 6.7 ms, a ROS driver says so in ``LaserScan.time_increment``. A robot that
 meanwhile measures each beam from a slightly different pose, and treating the scan as
 taken from one pose skews it. The skew is small (a few millimetres at 0.5 m/s) but always
 the same way for a robot driving forward, so scan matching turns it into a heading drift
-per metre travelled (docs/real_logs.md, "Scans skewed by the robot's motion").
+per metre travelled (docs/real_logs.md, "Where the seams' error comes from, scans skewed
+by the robot's motion").
 """
 
 from __future__ import annotations
@@ -15,6 +16,9 @@ import dataclasses
 import numpy as np
 
 from bsslam.scan.laser_scan import LaserScan
+from bsslam.scan.segment import beam_points
+from bsslam.se2 import between, compose
+from bsslam.trajectory import wrap_angle
 
 
 def deskew(scan: LaserScan, velocity: np.ndarray, laser_offset: np.ndarray) -> LaserScan:
@@ -48,25 +52,17 @@ def deskew(scan: LaserScan, velocity: np.ndarray, laser_offset: np.ndarray) -> L
     tau = (np.arange(n) / (n - 1) - 0.5) * scan.sweep_time_s
     ranges = scan.ranges
     hit = np.isfinite(ranges) & (ranges > 0) & (ranges < scan.max_range)
-    ox, oy, oth = (float(c) for c in laser_offset)
-    co, so = np.cos(oth), np.sin(oth)
-    r = np.where(hit, ranges, 0.0)
-    # the return in the robot frame at τ …
-    lx, ly = r * np.cos(scan.angles), r * np.sin(scan.angles)
-    px, py = ox + co * lx - so * ly, oy + so * lx + co * ly
-    # … in the robot frame at the middle of the sweep …
-    turn = v[2] * tau
-    ct, st = np.cos(turn), np.sin(turn)
-    qx, qy = v[0] * tau + ct * px - st * py, v[1] * tau + st * px + ct * py
-    # … and in the laser frame there
-    dx, dy = qx - ox, qy - oy
-    mx, my = co * dx + so * dy, -so * dx + co * dy
+    offset = np.asarray(laser_offset, dtype=float)
+    # each return as a pose (heading 0) in the laser frame at τ, carried to the robot frame
+    # at τ, to the robot frame at the middle of the sweep, and to the laser frame there
+    returns = np.zeros((n, 3))
+    returns[:, :2] = beam_points(scan.angles, np.where(hit, ranges, 0.0))
+    at_middle = between(offset, compose(v * tau[:, None], compose(offset, returns)))
     # a return's bearing moves by less than the turn plus a few milliradians: stay in the
-    # scan's own convention of angles (it may run past ±π)
-    moved = np.arctan2(my, mx) - scan.angles
-    moved = (moved + np.pi) % (2 * np.pi) - np.pi
-    angles = scan.angles + np.where(hit, moved, turn)
-    new_ranges = np.where(hit, np.hypot(mx, my), ranges)
+    # scan's own convention of angles (it may run past ±π); a beam without one turns
+    moved = wrap_angle(np.arctan2(at_middle[:, 1], at_middle[:, 0]) - scan.angles)
+    angles = scan.angles + np.where(hit, moved, v[2] * tau)
+    new_ranges = np.where(hit, np.hypot(at_middle[:, 0], at_middle[:, 1]), ranges)
     if np.any(np.diff(angles) <= 0):
         order = np.argsort(angles, kind="stable")
         angles, new_ranges = angles[order], new_ranges[order]

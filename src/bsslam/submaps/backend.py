@@ -127,6 +127,10 @@ class SubmapStats:
     sweep_closures: int = 0
     loop_rejections: dict[str, int] = field(default_factory=dict)
 
+    def reject(self, reason: str, count: int = 1) -> None:
+        """Count ``count`` loop-closure candidates rejected for ``reason``."""
+        self.loop_rejections[reason] = self.loop_rejections.get(reason, 0) + count
+
 
 class SubmapSLAM:
     """BS-SLAM in local submaps with a pose graph over them; the interface the mapper uses
@@ -306,7 +310,7 @@ class SubmapSLAM:
             self.stats.loop_candidates += 1
             match = match_submaps(self.frozen[j].shape, query, guess, cov, window_m, window_rad, cfg)
             if not match.ok:
-                self.stats.loop_rejections[match.reason] = self.stats.loop_rejections.get(match.reason, 0) + 1
+                self.stats.reject(match.reason)
                 continue
             surprising = cfg.loop_support_submaps > 0 and not vouched_by_graph(match, cov, window_m, window_rad, cfg)
             found.append((_record(int(j), k, match), window_m, surprising))
@@ -362,15 +366,15 @@ class SubmapSLAM:
         with ThreadPoolExecutor(max_workers=min(_SWEEP_THREADS, os.cpu_count() or 1)) as pool:
             matches = list(pool.map(match, jobs))
         added = []
-        for job, m in zip(jobs, matches):
+        for (j, k, _, cov, window_m, window_rad), m in zip(jobs, matches):
             if not m.ok:
                 continue
-            if not m.expected and window_covers(job[3], job[4], job[5], cfg):
+            if not m.expected and window_covers(cov, window_m, window_rad, cfg):
                 # the graph could judge this one (its window was not clipped) and finds it
                 # outside its 99 % region; with no later submaps to vote, that is a refusal
-                self.stats.loop_rejections["sweep_unexpected"] = self.stats.loop_rejections.get("sweep_unexpected", 0) + 1
+                self.stats.reject("sweep_unexpected")
                 continue
-            added.append((_record(job[0], job[1], m), job[4]))
+            added.append((_record(j, k, m), window_m))
         for record, window_m in added:
             loop_id = self.graph.add_loop(record.reference, record.query, record.relative,
                                           _proper(record.covariance, window_m))
@@ -427,7 +431,7 @@ class SubmapSLAM:
         expired = [p for p in self._pending if p[0].query + reach <= k]
         if expired:
             self._pending = [p for p in self._pending if p[0].query + reach > k]
-            self.stats.loop_rejections["unsupported"] = self.stats.loop_rejections.get("unsupported", 0) + len(expired)
+            self.stats.reject("unsupported", len(expired))
 
     def _drop_loops(self, dropped: list[int]) -> None:
         """Forget the loop closures the optimiser dropped (with them the system was
@@ -437,7 +441,7 @@ class SubmapSLAM:
         gone = set(dropped)
         self.loops = [loop for loop in self.loops if loop.loop_id not in gone]
         self.stats.loop_closures -= len(gone)
-        self.stats.loop_rejections["ill_posed"] = self.stats.loop_rejections.get("ill_posed", 0) + len(gone)
+        self.stats.reject("ill_posed", len(gone))
 
     def _check_memory(self) -> None:
         used = self.nbytes
