@@ -784,10 +784,11 @@ class SubmapConfig:
             N > 0 (default 5): verified matches vote on each other — two whose submaps are
             each within N submaps of the other's agree when the cycle they close through
             the submaps' odometry-like constraints is consistent (χ²(3) at 99 %), disagree
-            when it is not; a cycle votes only when it can tell the match from the
-            alignment it could be confused with: the runner-up its search found (its
-            *rival*), or, without one, any alignment ``loop_distinct_m`` /
-            ``loop_distinct_rad`` away. A match the graph expects (within the 99 % region
+            when it is not; a consistent cycle agrees only when it can tell the match
+            from the alignment it could be confused with: the runner-up its search found
+            (its *rival*), or, without one, any alignment ``loop_distinct_m`` /
+            ``loop_distinct_rad`` away; an inconsistent cycle always disagrees
+            (:func:`~bsslam.submaps.loop_support.votes`). A match the graph expects (within the 99 % region
             of its relative pose, found in a search window that covered ``loop_sigmas`` σ
             of it: one clipped at ``loop_max_window_m`` saw only part of what the graph
             admits) enters unless more neighbours disagree than agree; any other, a

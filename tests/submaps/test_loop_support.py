@@ -148,3 +148,25 @@ def test_a_cycle_votes_when_it_can_tell_the_match_from_its_rival():
     assert votes(copy, [loop(2, 10)], lost, 3, *distinct) == (0, 1)
     # precise edges tell the far rival apart too
     assert votes(loop(1, 9, rival=far), [loop(2, 10)], edges, 3, *distinct) == (1, 0)
+
+
+def test_an_inconsistent_cycle_disagrees_whatever_the_rival():
+    """Two matches of one query against neighbouring references, 4 m apart: each cycle
+    through the other is far outside its 99 % region, so each disagrees with the other —
+    also for the wrong one, whose rival lies so close that no cycle could tell them apart
+    (before, that cycle did not vote and the wrong match entered unopposed). A consistent
+    cycle that cannot tell a match from its rival still does not agree."""
+    bases = _bases(16)
+    edges = [(between(bases[m], bases[m + 1]), np.diag(EDGE_SIGMA ** 2)) for m in range(len(bases) - 1)]
+    right = LoopEdge(12, 14, between(bases[12], bases[14]), np.diag(LOOP_SIGMA ** 2),
+                     rival=compose(between(bases[12], bases[14]), np.array([8.0, 0.0, 0.0])))
+    relative = compose(between(bases[11], bases[14]), np.array([4.0, 0.0, 0.0]))
+    wrong = LoopEdge(11, 14, relative, np.diag(LOOP_SIGMA ** 2), rival=compose(relative, np.array([0.01, 0.0, 0.0])))
+    assert cycle_distance(wrong, right, edges) > 100 * CONSISTENT_CHI2
+    assert votes(right, [wrong], edges, 3, 0.5, np.radians(10.0)) == (0, 1)
+    assert votes(wrong, [right], edges, 3, 0.5, np.radians(10.0)) == (0, 1)
+    # a right neighbour of the right match: consistent, but a rival 1 cm away is not told apart
+    near_rival = dataclasses.replace(right, rival=compose(right.relative, np.array([0.01, 0.0, 0.0])))
+    other = LoopEdge(13, 14, between(bases[13], bases[14]), np.diag(LOOP_SIGMA ** 2))
+    assert votes(near_rival, [other], edges, 3, 0.5, np.radians(10.0)) == (0, 0)
+    assert votes(right, [other], edges, 3, 0.5, np.radians(10.0)) == (1, 0)
