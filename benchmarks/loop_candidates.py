@@ -11,7 +11,10 @@ relative pose of the two bases, with the match's Mahalanobis distance under its 
 covariance. It answers: are the rejected candidates right ones (a check too strict), are
 the accepted ones wrong (a check too loose), and does a wrong one's covariance admit its
 error. By default only accepted matches and rejections with at least 4 m of overlap are
-listed (``--all``: every candidate).
+listed (``--all``: every candidate). ``--votes`` also prints, as the run makes them, the
+votes between neighbouring matches (``submaps.loop_support_submaps``): each candidate's
+agree : disagree count and, per neighbour, the cycle's χ² against its 99 % bound and the
+χ² its rival would give in its place (the test a consistent cycle must pass to agree).
 """
 
 from __future__ import annotations
@@ -23,7 +26,8 @@ import numpy as np
 
 import bsslam.submaps.backend as backend
 from bsslam.config import SLAMConfig
-from bsslam.se2 import between
+from bsslam.se2 import between, compose, inverse
+from bsslam.submaps import loop_support
 from bsslam.trajectory import wrap_angle
 from graph_consistency import reference_bases, run_log
 
@@ -50,12 +54,34 @@ def run_recording_candidates(log: Path, seed: int | None, config: SLAMConfig):
     return result, [(submap_of[id(r)], submap_of[id(q)], guess, m) for r, q, guess, m in recorded]
 
 
+def printing_votes(candidate, others, edges, reach, distinct_m, distinct_rad):
+    """:func:`bsslam.submaps.loop_support.votes`, printing its count and each neighbour's
+    cycle χ² and rival-swap χ² (``–`` without a rival)."""
+    agree, disagree = loop_support.votes(candidate, others, edges, reach, distinct_m, distinct_rad)
+    cells = []
+    swap = None if candidate.rival is None else compose(candidate.rival, inverse(candidate.relative))
+    for other in others:
+        if not loop_support.neighbours(candidate, other, reach):
+            continue
+        pose, cov = loop_support.cycle(candidate, other, edges)
+        rival = "–" if swap is None else f"{swap @ np.linalg.solve(cov, swap):.1f}"
+        cells.append(f"{other.reference}→{other.query}: χ² {pose @ np.linalg.solve(cov, pose):.1f}, "
+                     f"{np.hypot(*pose[:2]):.2f} m; rival χ² {rival}")
+    if cells:
+        print(f"vote on {candidate.reference}→{candidate.query}: {agree} : {disagree} "
+              f"(99 %: {loop_support.CONSISTENT_CHI2:.1f}) — " + "; ".join(cells))
+    return agree, disagree
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("log", type=Path, help="a CARMEN log with a .gt.txt reference beside it")
     parser.add_argument("--seed", type=int, default=None, help="1 mm of range noise with this seed")
     parser.add_argument("--all", action="store_true", help="list every candidate")
+    parser.add_argument("--votes", action="store_true", help="print the votes between neighbouring matches")
     args = parser.parse_args()
+    if args.votes:
+        backend.votes = printing_votes
     result, candidates = run_recording_candidates(args.log, args.seed, SLAMConfig())
     reference, index = reference_bases(result, args.log)
     print(f"{args.log.name}: {len(candidates)} candidates, {sum(c[3].ok for c in candidates)} accepted")
