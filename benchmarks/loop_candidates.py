@@ -26,7 +26,7 @@ import numpy as np
 
 import bsslam.submaps.backend as backend
 from bsslam.config import SLAMConfig
-from bsslam.se2 import between, compose, inverse
+from bsslam.se2 import between
 from bsslam.submaps import loop_support
 from bsslam.trajectory import wrap_angle
 from graph_consistency import reference_bases, run_log
@@ -56,18 +56,13 @@ def run_recording_candidates(log: Path, seed: int | None, config: SLAMConfig):
 
 def printing_votes(candidate, others, edges, reach, distinct_m, distinct_rad):
     """:func:`bsslam.submaps.loop_support.votes`, printing its count and each neighbour's
-    cycle χ² and rival-swap χ² (``–`` without a rival)."""
-    agree, disagree = loop_support.votes(candidate, others, edges, reach, distinct_m, distinct_rad)
-    cells = []
-    swap = None if candidate.rival is None else compose(candidate.rival, inverse(candidate.relative))
-    for other in others:
-        if not loop_support.neighbours(candidate, other, reach):
-            continue
-        pose, cov = loop_support.cycle(candidate, other, edges)
-        rival = "–" if swap is None else f"{swap @ np.linalg.solve(cov, swap):.1f}"
-        cells.append(f"{other.reference}→{other.query}: χ² {pose @ np.linalg.solve(cov, pose):.1f}, "
-                     f"{np.hypot(*pose[:2]):.2f} m; rival χ² {rival}")
-    if cells:
+    ballot: the cycle's χ² and size, and the χ² with the rival in its place (``–``
+    without a rival)."""
+    cast = loop_support.ballots(candidate, others, edges, reach, distinct_m, distinct_rad)
+    agree, disagree = [b.vote for b in cast].count(1), [b.vote for b in cast].count(-1)
+    if cast:
+        cells = [f"{b.other.reference}→{b.other.query}: χ² {b.chi2:.1f}, {np.hypot(*b.cycle[:2]):.2f} m; "
+                 f"rival χ² {'–' if b.rival_chi2 is None else f'{b.rival_chi2:.1f}'}" for b in cast]
         print(f"vote on {candidate.reference}→{candidate.query}: {agree} : {disagree} "
               f"(99 %: {loop_support.CONSISTENT_CHI2:.1f}) — " + "; ".join(cells))
     return agree, disagree

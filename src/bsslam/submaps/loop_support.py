@@ -100,10 +100,30 @@ def neighbours(a: LoopEdge, b: LoopEdge, reach: int) -> bool:
             and (a.reference, a.query) != (b.reference, b.query))
 
 
-def votes(candidate: LoopEdge, others: Sequence[LoopEdge], edges: Sequence[tuple[np.ndarray, np.ndarray]],
-          reach: int, distinct_m: float, distinct_rad: float) -> tuple[int, int]:
-    """How many of the neighbouring matches in ``others`` (:func:`neighbours`) close a
-    consistent cycle with ``candidate`` (χ²(3) at 99 %) and how many an inconsistent one.
+@dataclass(frozen=True)
+class Ballot:
+    """One neighbour's say on a candidate match (:func:`ballots`).
+
+    Attributes:
+        other: the neighbouring match.
+        cycle: (3,) the cycle candidate, chain, other⁻¹, chain (:func:`cycle`).
+        chi2: its squared Mahalanobis distance from the identity under its covariance.
+        rival_chi2: the same with the candidate's rival in its place, to first order
+            (None without a rival).
+        vote: +1 agrees, −1 disagrees, 0 cannot tell.
+    """
+
+    other: LoopEdge
+    cycle: np.ndarray
+    chi2: float
+    rival_chi2: float | None
+    vote: int
+
+
+def ballots(candidate: LoopEdge, others: Sequence[LoopEdge], edges: Sequence[tuple[np.ndarray, np.ndarray]],
+            reach: int, distinct_m: float, distinct_rad: float) -> list[Ballot]:
+    """What each neighbouring match in ``others`` (:func:`neighbours`) says of
+    ``candidate`` through the cycle they close (χ²(3) at 99 %).
 
     An inconsistent cycle always disagrees: the candidate and the neighbour cannot both be
     right. A consistent one agrees only when it is informative, when it can tell the
@@ -121,21 +141,31 @@ def votes(candidate: LoopEdge, others: Sequence[LoopEdge], edges: Sequence[tuple
     off (χ² 100); the right one, whose rival the cycle could tell apart, waited on the
     other's disagreement, and the wrong one, its rival close by, heard nothing and
     entered the graph, taking the run 1.08 m off."""
-    consistent = inconsistent = 0
     scale = float(np.sqrt(CONSISTENT_CHI2))
     swap = None if candidate.rival is None else compose(candidate.rival, inverse(candidate.relative))
+    result = []
     for other in others:
         if not neighbours(candidate, other, reach):
             continue
         pose, cov = cycle(candidate, other, edges)
-        if _squared_distance(pose, cov) > CONSISTENT_CHI2:
-            inconsistent += 1
-        elif swap is not None:
-            # the cycle starts with the candidate (reference frame): the rival in its place
-            # moves the cycle by ``swap`` to first order
-            consistent += int(_squared_distance(swap, cov) > CONSISTENT_CHI2)
+        chi2 = _squared_distance(pose, cov)
+        # the cycle starts with the candidate (reference frame): the rival in its place
+        # moves the cycle by ``swap`` to first order
+        rival_chi2 = None if swap is None else _squared_distance(swap, cov)
+        if chi2 > CONSISTENT_CHI2:
+            vote = -1
+        elif rival_chi2 is not None:
+            vote = int(rival_chi2 > CONSISTENT_CHI2)
         else:
-            consistent += int(scale * np.sqrt(np.linalg.eigvalsh(cov[:2, :2])[-1]) <= distinct_m
-                              and scale * np.sqrt(cov[2, 2]) <= distinct_rad)
-    return consistent, inconsistent
+            vote = int(scale * np.sqrt(np.linalg.eigvalsh(cov[:2, :2])[-1]) <= distinct_m
+                       and scale * np.sqrt(cov[2, 2]) <= distinct_rad)
+        result.append(Ballot(other, pose, chi2, rival_chi2, vote))
+    return result
 
+
+def votes(candidate: LoopEdge, others: Sequence[LoopEdge], edges: Sequence[tuple[np.ndarray, np.ndarray]],
+          reach: int, distinct_m: float, distinct_rad: float) -> tuple[int, int]:
+    """How many of the neighbouring matches in ``others`` agree with ``candidate`` and how
+    many disagree (:func:`ballots`, which says when a cycle counts)."""
+    cast = [b.vote for b in ballots(candidate, others, edges, reach, distinct_m, distinct_rad)]
+    return cast.count(1), cast.count(-1)
