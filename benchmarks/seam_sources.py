@@ -21,7 +21,13 @@ scan is placed by it). Per run it prints:
   the best rigid fit (m), with the filter's seams and with the front end's;
 - **ATE** of the run's trajectory, and with a linear heading drift of c ° per 100 m of
   path taken out of it (each step's heading turned by c × its length), for the c in
-  −2…2 that minimises it: how much of the error that one drift explains.
+  −2…2 that minimises it: how much of the error that one drift explains;
+- **the filter's own say** in each seam's heading: its seam less the front end's chain
+  over the same scans (what the spline updates changed), RMS (°), and its correlation
+  with the front end's error. Pooled over every run at the end, with the RMS heading error
+  of the front end's chain plus w × that correction for w = 0, ½, 1: where the updates
+  correct the front end the correlation is negative and some w < 1 … 1 does best; where
+  they only add their own error it is near 0 and w = 0 does.
 
 What the shared logs gave is in docs/real_logs.md ("Where the seams' error comes from").
 """
@@ -78,12 +84,15 @@ def without_drift(trajectory: Trajectory, deg_per_100m: float) -> Trajectory:
     return Trajectory(trajectory.stamps, np.array(out))
 
 
-def report(log: Path, seed: int) -> None:
+def report(log: Path, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Print one run's row; return the filter's heading correction over the front end and
+    the front end's heading error (rad) of each seam kept, both (k,)."""
     result = run_log(log, seed, SLAMConfig())
     submaps = result.submaps
+    none = (np.zeros(0), np.zeros(0))
     if submaps is None or not submaps.frozen:
         print(f"| {log.name} | {seed} | no frozen submap |")
-        return
+        return none
     steps = np.asarray(result.step_submaps)
     base_step = [0] + [int(np.flatnonzero(steps == k)[-1]) for k in range(len(submaps.frozen))]
     reference, index = reference_bases(result, log)
@@ -102,13 +111,15 @@ def report(log: Path, seed: int) -> None:
         keep[-1] = False
     if not np.any(keep):
         print(f"| {log.name} | {seed} | no seam with a reference pose at both ends |")
-        return
+        return none
     length = np.hypot(truth[keep, 0], truth[keep, 1])
     cells = []
     drift = {}
+    errors = {}
     for name, rel in sources.items():
         err = rel[keep] - truth[keep]
         err[:, 2] = wrap_angle(err[:, 2])
+        errors[name] = err[:, 2]
         cells.append(f"{np.median(np.hypot(err[:, 0], err[:, 1])):.3f} m, {math.degrees(np.sqrt(np.mean(err[:, 2] ** 2))):.2f}°")
         drift[name] = 100 * math.degrees(np.sum(err[:, 2])) / np.sum(length)
     ok = index >= 0
@@ -116,9 +127,18 @@ def report(log: Path, seed: int) -> None:
     final = result.trajectory
     by_drift = [ate(without_drift(final, c), reference)[0] for c in DRIFTS]
     best = int(np.argmin(by_drift))
+    correction = wrap_angle(errors["filter"] - errors["front end"])
     print(f"| {log.name} | {seed} | {int(np.sum(keep))} | {cells[0]} | {cells[1]} | {cells[2]} | "
           f"{drift['filter']:+.2f} / {drift['front end']:+.2f} | {chains['filter']:.3f} / {chains['front end']:.3f} | "
-          f"{ate(final, reference)[0]:.3f} | {by_drift[best]:.3f} at {DRIFTS[best]:+.2f} |", flush=True)
+          f"{ate(final, reference)[0]:.3f} | {by_drift[best]:.3f} at {DRIFTS[best]:+.2f} | "
+          f"{math.degrees(np.sqrt(np.mean(correction ** 2))):.2f}°, {correlation(correction, errors['front end']):+.2f} |",
+          flush=True)
+    return correction, errors["front end"]
+
+
+def correlation(a: np.ndarray, b: np.ndarray) -> float:
+    """Pearson's correlation of two (k,) arrays; NaN with fewer than three values."""
+    return float(np.corrcoef(a, b)[0, 1]) if a.shape[0] > 2 else math.nan
 
 
 def main() -> None:
@@ -128,11 +148,20 @@ def main() -> None:
     args = parser.parse_args()
     print("| log | seed | seams | filter's seams: median error, RMS heading | front end's chain | odometry | "
           "heading drift °/100 m, filter / front end | bases through the seams alone, RMS after a rigid fit (m), "
-          "filter / front end | ATE (m) | ATE without the best linear heading drift (°/100 m) |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          "filter / front end | ATE (m) | ATE without the best linear heading drift (°/100 m) | "
+          "filter's heading correction over the front end: RMS, correlation with the front end's error |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for log in args.logs:
-        for seed in args.seeds:
-            report(log, seed)
+        pooled = [report(log, seed) for seed in args.seeds]
+        correction = np.concatenate([c for c, _ in pooled])
+        front_end = np.concatenate([e for _, e in pooled])
+        if correction.shape[0] > 2:
+            blends = ", ".join(f"w = {w:g}: {math.degrees(np.sqrt(np.mean((front_end + w * correction) ** 2))):.2f}°"
+                               for w in (0.0, 0.5, 1.0))
+            print(f"\n{log.name}, {correction.shape[0]} seams pooled: the filter's correction RMS "
+                  f"{math.degrees(np.sqrt(np.mean(correction ** 2))):.2f}°, correlation with the front end's error "
+                  f"{correlation(correction, front_end):+.2f}; RMS heading error of the front end's chain plus w × "
+                  f"the correction: {blends}\n")
 
 
 if __name__ == "__main__":
