@@ -59,7 +59,7 @@ def printing_votes(candidate, others, edges, reach, distinct_m, distinct_rad):
     ballot: the cycle's χ² and size, and the χ² with the rival in its place (``–``
     without a rival)."""
     cast = loop_support.ballots(candidate, others, edges, reach, distinct_m, distinct_rad)
-    agree, disagree = [b.vote for b in cast].count(1), [b.vote for b in cast].count(-1)
+    agree, disagree = loop_support.tally(cast)
     if cast:
         cells = [f"{b.other.reference}→{b.other.query}: χ² {b.chi2:.1f}, {np.hypot(*b.cycle[:2]):.2f} m; "
                  f"rival χ² {'–' if b.rival_chi2 is None else f'{b.rival_chi2:.1f}'}" for b in cast]

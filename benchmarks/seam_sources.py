@@ -120,7 +120,7 @@ def report(log: Path, seed: int) -> tuple[np.ndarray, np.ndarray]:
         err = rel[keep] - truth[keep]
         err[:, 2] = wrap_angle(err[:, 2])
         errors[name] = err[:, 2]
-        cells.append(f"{np.median(np.hypot(err[:, 0], err[:, 1])):.3f} m, {math.degrees(np.sqrt(np.mean(err[:, 2] ** 2))):.2f}°")
+        cells.append(f"{np.median(np.hypot(err[:, 0], err[:, 1])):.3f} m, {rms_degrees(err[:, 2]):.2f}°")
         drift[name] = 100 * math.degrees(np.sum(err[:, 2])) / np.sum(length)
     ok = index >= 0
     chains = {name: rigid_rms(chained(sources[name])[ok, :2], truth_poses[ok, :2]) for name in ("filter", "front end")}
@@ -131,9 +131,14 @@ def report(log: Path, seed: int) -> tuple[np.ndarray, np.ndarray]:
     print(f"| {log.name} | {seed} | {int(np.sum(keep))} | {cells[0]} | {cells[1]} | {cells[2]} | "
           f"{drift['filter']:+.2f} / {drift['front end']:+.2f} | {chains['filter']:.3f} / {chains['front end']:.3f} | "
           f"{ate(final, reference)[0]:.3f} | {by_drift[best]:.3f} at {DRIFTS[best]:+.2f} | "
-          f"{math.degrees(np.sqrt(np.mean(correction ** 2))):.2f}°, {correlation(correction, errors['front end']):+.2f} |",
+          f"{rms_degrees(correction):.2f}°, {correlation(correction, errors['front end']):+.2f} |",
           flush=True)
     return correction, errors["front end"]
+
+
+def rms_degrees(angles: np.ndarray) -> float:
+    """RMS (°) of angles (k,) in radians."""
+    return math.degrees(float(np.sqrt(np.mean(angles ** 2))))
 
 
 def correlation(a: np.ndarray, b: np.ndarray) -> float:
@@ -156,10 +161,10 @@ def main() -> None:
         correction = np.concatenate([c for c, _ in pooled])
         front_end = np.concatenate([e for _, e in pooled])
         if correction.shape[0] > 2:
-            blends = ", ".join(f"w = {w:g}: {math.degrees(np.sqrt(np.mean((front_end + w * correction) ** 2))):.2f}°"
+            blends = ", ".join(f"w = {w:g}: {rms_degrees(front_end + w * correction):.2f}°"
                                for w in (0.0, 0.5, 1.0))
             print(f"\n{log.name}, {correction.shape[0]} seams pooled: the filter's correction RMS "
-                  f"{math.degrees(np.sqrt(np.mean(correction ** 2))):.2f}°, correlation with the front end's error "
+                  f"{rms_degrees(correction):.2f}°, correlation with the front end's error "
                   f"{correlation(correction, front_end):+.2f}; RMS heading error of the front end's chain plus w × "
                   f"the correction: {blends}\n")
 

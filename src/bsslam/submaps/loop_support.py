@@ -167,5 +167,10 @@ def votes(candidate: LoopEdge, others: Sequence[LoopEdge], edges: Sequence[tuple
           reach: int, distinct_m: float, distinct_rad: float) -> tuple[int, int]:
     """How many of the neighbouring matches in ``others`` agree with ``candidate`` and how
     many disagree (:func:`ballots`, which says when a cycle counts)."""
-    cast = [b.vote for b in ballots(candidate, others, edges, reach, distinct_m, distinct_rad)]
-    return cast.count(1), cast.count(-1)
+    return tally(ballots(candidate, others, edges, reach, distinct_m, distinct_rad))
+
+
+def tally(cast: Sequence[Ballot]) -> tuple[int, int]:
+    """(agree, disagree): the ballots voting +1 and −1."""
+    vote = [b.vote for b in cast]
+    return vote.count(1), vote.count(-1)
