@@ -20,6 +20,7 @@ so the loop never branches on "visualise?".
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Protocol
@@ -208,6 +209,9 @@ class _FrontendMotion:
     def __init__(self, config) -> None:
         self.odometry = LaserOdometry(config)
         self.schedule = UpdateSchedule(config.update_distance_m, config.update_angle_rad)
+        # scales a trusted match's translation σ for the filter (FrontendConfig.filter_translation_scale)
+        root = math.sqrt(config.filter_translation_scale)
+        self._trust = np.outer([root, root, 1.0], [root, root, 1.0])
         self._pose: np.ndarray | None = None
 
     def next(self, frame: Frame, step: FrontendStep | None = None):
@@ -219,7 +223,8 @@ class _FrontendMotion:
         if matched.increment is None:  # the first frame
             return True, None, None, None
         key = "frontend_fallbacks" if matched.fallback else "frontend_matched"
-        if not self.schedule.add(matched.increment, matched.covariance):
+        covariance = matched.covariance if matched.fallback else matched.covariance * self._trust
+        if not self.schedule.add(matched.increment, covariance):
             return False, None, None, key
         delta, cov = self.schedule.take()
         return True, delta, cov, key

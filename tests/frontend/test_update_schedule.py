@@ -55,3 +55,28 @@ def test_pose_between_updates_composes_the_filter_pose():
     np.testing.assert_allclose(got_pose, want_pose)
     np.testing.assert_allclose(got_cov, want_cov)
     assert np.all(np.linalg.eigvalsh(got_cov) > 0)
+
+
+def test_the_filter_predicts_with_a_matchs_translation_scaled_and_a_fallback_as_is():
+    """``frontend.filter_translation_scale``: a trusted match reaches the filter with its
+    translation variances × s (σ × √s, correlations kept) and its heading variance as
+    stated; a fallback (raw odometry) is not scaled."""
+    from bsslam.config import FrontendConfig
+    from bsslam.frontend.laser_odometry import FrontendStep
+    from bsslam.mapper import _FrontendMotion
+
+    s = 0.25
+    motion = _FrontendMotion(FrontendConfig(update_distance_m=0.0, update_angle_rad=0.0, filter_translation_scale=s))
+    a = np.random.default_rng(7).normal(size=(3, 3))
+    q = a @ a.T * 1e-3 + np.eye(3) * 1e-4
+    pose, inc = np.zeros(3), np.array([0.3, 0.02, 0.1])
+    assert motion.next(None, FrontendStep(None, None, pose, None, None, False, True))[1] is None
+    run, delta, cov, key = motion.next(None, FrontendStep(inc, q, pose, inc, None, False, True))
+    assert run and key == "frontend_matched"
+    np.testing.assert_allclose(delta, inc)
+    np.testing.assert_allclose(np.diag(cov), np.diag(q) * [s, s, 1.0], rtol=1e-12)
+    corr = cov / np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
+    np.testing.assert_allclose(corr, q / np.sqrt(np.outer(np.diag(q), np.diag(q))), rtol=1e-12)
+    run, delta, cov, key = motion.next(None, FrontendStep(inc, q, pose, inc, None, True, False))
+    assert run and key == "frontend_fallbacks"
+    np.testing.assert_allclose(cov, q, rtol=1e-12)
