@@ -386,7 +386,9 @@ class FrontendConfig:
     update_distance_m, update_angle_rad: the filter processes a scan once the robot has
         moved this far (m) or turned this much (rad) since the last scan it processed
         (GMapping's linearUpdate/angularUpdate, whose defaults these are); the scans in
-        between only feed the front end. 0 and 0 process every scan.
+        between only feed the front end. 0 and 0 process every scan. The wheels' odometry
+        measures that motion, not the scan matches, so that which scans the filter sees
+        does not turn on the ranges' last digits (:mod:`bsslam.frontend.update_schedule`).
 
     Beams and points
         min_range_m: beams at or below this range are dropped (m); the same quantity and

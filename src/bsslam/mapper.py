@@ -224,7 +224,7 @@ class _FrontendMotion:
             return True, None, None, None
         key = "frontend_fallbacks" if matched.fallback else "frontend_matched"
         covariance = matched.covariance if matched.fallback else matched.covariance * self._trust
-        if not self.schedule.add(matched.increment, covariance):
+        if not self.schedule.add(matched.increment, covariance, matched.odometry_increment):
             return False, None, None, key
         delta, cov = self.schedule.take()
         return True, delta, cov, key

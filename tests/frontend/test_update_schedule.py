@@ -80,3 +80,19 @@ def test_the_filter_predicts_with_a_matchs_translation_scaled_and_a_fallback_as_
     run, delta, cov, key = motion.next(None, FrontendStep(inc, q, pose, inc, None, True, False))
     assert run and key == "frontend_fallbacks"
     np.testing.assert_allclose(cov, q, rtol=1e-12)
+
+
+def test_the_odometry_decides_when_the_filter_runs_not_the_match():
+    """Which scans the filter sees must not move with the ranges' noise: the compounded
+    odometry decides, while the matched increments are what is compounded for the filter."""
+    sched = UpdateSchedule(distance_m=1.0, angle_rad=0.5)
+    matched, odometry = np.array([0.6, 0.0, 0.0]), np.array([0.4, 0.0, 0.0])
+    assert not sched.add(matched, np.eye(3) * 1e-4, odometry)    # matches say 1.2 m, wheels 0.8
+    assert not sched.add(matched, np.eye(3) * 1e-4, odometry)
+    assert sched.add(matched, np.eye(3) * 1e-4, odometry)        # wheels 1.2 m
+    inc, _ = sched.take()
+    np.testing.assert_allclose(inc, [1.8, 0.0, 0.0], atol=1e-12)
+    turning = UpdateSchedule(distance_m=10.0, angle_rad=0.5)
+    assert turning.add(np.array([0.0, 0.0, 0.1]), np.zeros((3, 3)), np.array([0.0, 0.0, 0.6]))
+    turning.take()
+    assert not turning.add(np.array([0.0, 0.0, 0.6]), np.zeros((3, 3)), np.array([0.0, 0.0, 0.1]))
