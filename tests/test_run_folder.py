@@ -259,8 +259,11 @@ def test_a_signal_mid_run_ends_simulate_cleanly(tmp_path, sig):
 
 def _run_python(script: str, timeout: float) -> subprocess.CompletedProcess:
     """``script`` run by a fresh interpreter with this checkout's ``src`` first on its path
-    (a signal sent there must not reach pytest); asserts it exits 0."""
+    (a signal sent there must not reach pytest); asserts it exits 0. Ctrl-C is Python's
+    KeyboardInterrupt there whatever the suite inherited: a shell that starts the suite as
+    a background job hands its children SIGINT ignored, and Python then keeps it ignored."""
     env = {**os.environ, "PYTHONPATH": str(SRC)}
+    script = "import signal\nsignal.signal(signal.SIGINT, signal.default_int_handler)\n" + script
     done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=timeout)
     assert done.returncode == 0, done.stderr
     return done
