@@ -69,6 +69,7 @@ import numpy as np
 
 from bsslam.chi2 import chi2_quantile
 from bsslam.errors import FilterError
+from bsslam.submaps.drift_factor import DRIFT_KEY, drift_corrected, drift_factor
 
 #: Default σ² of node 0's prior: the map frame is defined by node 0, held (almost) fixed.
 _ANCHOR_VARIANCE = 1e-9
@@ -143,11 +144,16 @@ class PoseGraph:
             threshold itself (times a factor below 1) once the Cauchy kernel is active, as
             the kernel's weights are only refreshed where the graph is relinearised.
         max_iterations: at most this many extra iSAM2 iterations after a loop closure.
+        drift_rate_sigma: σ (rad/m) of a heading drift rate every odometry factor shares,
+            an unknown of the graph with a zero-mean prior (:mod:`bsslam.submaps.drift_factor`);
+            an odometry factor takes it in proportion to the ``distance_m`` given to
+            :meth:`add_node`. 0 leaves it out (plain between factors).
     """
 
     def __init__(self, first_pose, first_covariance=None, *, loop_outliers: str | None = "cauchy",
                  robust_kernel_width: float = 3.0, loop_inlier_probability: float = 0.99,
-                 relinearize_threshold: float = 1e-4, max_iterations: int = 20):
+                 relinearize_threshold: float = 1e-4, max_iterations: int = 20,
+                 drift_rate_sigma: float = 0.0):
         first_pose = _check_pose(first_pose, "first_pose")
         if first_covariance is None:
             first_covariance = _ANCHOR_VARIANCE * np.eye(3)
@@ -162,6 +168,8 @@ class PoseGraph:
             raise ValueError(f"relinearize_threshold must be > 0, got {relinearize_threshold}")
         if not (isinstance(max_iterations, int) and max_iterations >= 0):
             raise ValueError(f"max_iterations must be an integer ≥ 0, got {max_iterations!r}")
+        if not (np.isfinite(drift_rate_sigma) and drift_rate_sigma >= 0):
+            raise ValueError(f"drift_rate_sigma must be finite and ≥ 0, got {drift_rate_sigma!r}")
         self.loop_outliers = loop_outliers
         self.robust_kernel_width = float(robust_kernel_width)
         self.loop_inlier_probability = float(loop_inlier_probability)
@@ -170,7 +178,9 @@ class PoseGraph:
         self._init_args = dict(first_pose=first_pose.copy(), first_covariance=first_covariance.copy(),
                                loop_outliers=loop_outliers, robust_kernel_width=self.robust_kernel_width,
                                loop_inlier_probability=self.loop_inlier_probability,
-                               relinearize_threshold=float(relinearize_threshold), max_iterations=max_iterations)
+                               relinearize_threshold=float(relinearize_threshold), max_iterations=max_iterations,
+                               drift_rate_sigma=float(drift_rate_sigma))
+        self.drift_rate_sigma = float(drift_rate_sigma)
         self._calls: list[tuple] = []
 
         params = gtsam.ISAM2Params()
@@ -188,6 +198,8 @@ class PoseGraph:
         # the prior and the odometry factors; the loop factors (Gaussian), their robust
         # versions (cauchy) and whether each is an inlier at the last classification (gnc)
         self._chain_factors = gtsam.NonlinearFactorGraph()
+        # the odometry factors that take the drift rate: chain index → (i, j, z, distance, noise)
+        self._drift_seams: dict[int, tuple] = {}
         self._loop_factors: list[gtsam.BetweenFactorPose2] = []
         self._robust_loops: list[gtsam.BetweenFactorPose2] = []
         self._loop_pairs: list[tuple[int, int]] = []
@@ -207,6 +219,12 @@ class PoseGraph:
         prior = gtsam.noiseModel.Gaussian.Covariance(_to_tangent(first_covariance, first_pose[2]))
         self._add_chain_factor(gtsam.PriorFactorPose2(0, gtsam.Pose2(*first_pose), prior))
         self._append_node(first_pose)
+        if self.drift_rate_sigma > 0:
+            rate = np.zeros(1)
+            self._add_chain_factor(gtsam.PriorFactorVector(
+                DRIFT_KEY, rate, gtsam.noiseModel.Isotropic.Sigma(1, self.drift_rate_sigma)))
+            self._new_values.insert(DRIFT_KEY, rate)
+            self._values.insert(DRIFT_KEY, rate)
 
     # -- building ------------------------------------------------------------------------
 
@@ -230,22 +248,31 @@ class PoseGraph:
             raise ValueError(f"{name} must be a node index in [0, {self._size}), got {i!r}")
         return int(i)
 
-    def add_node(self, relative, covariance) -> int:
+    def add_node(self, relative, covariance, distance_m: float = 0.0) -> int:
         """Add node i = (node i−1) ⊕ ``relative`` with a Gaussian odometry factor from
         node i−1 and return i.
 
         Args:
             relative: (3,) pose of the new node in the previous node's frame (m, m, rad).
             covariance: (3, 3) covariance of ``relative`` in bsslam convention.
+            distance_m: the distance travelled between the two (m), over which the
+                shared drift rate turns ``relative`` (with ``drift_rate_sigma`` > 0).
         """
         relative = _check_pose(relative, "relative")
         covariance = _check_covariance(covariance, "covariance")
-        self._calls.append(("add_node", relative.copy(), covariance.copy()))
+        if not (np.isfinite(distance_m) and distance_m >= 0):
+            raise ValueError(f"distance_m must be finite and ≥ 0, got {distance_m!r}")
+        self._calls.append(("add_node", relative.copy(), covariance.copy(), float(distance_m)))
         previous = self._size - 1
         z = gtsam.Pose2(*relative)
         noise = gtsam.noiseModel.Gaussian.Covariance(_to_tangent(covariance, relative[2]))
         i = self._size
-        self._add_chain_factor(gtsam.BetweenFactorPose2(previous, i, z, noise))
+        if self.drift_rate_sigma > 0:
+            self._drift_seams[self._chain_factors.size()] = (previous, i, z, float(distance_m), noise)
+            self._add_chain_factor(drift_factor(previous, i, z, distance_m, noise))
+            z = drift_corrected(z, float(self._values.atVector(DRIFT_KEY)[0]), distance_m)
+        else:
+            self._add_chain_factor(gtsam.BetweenFactorPose2(previous, i, z, noise))
         guess = self._values.atPose2(previous).compose(z)
         return self._append_node(np.array([guess.x(), guess.y(), guess.theta()]))
 
@@ -330,8 +357,18 @@ class PoseGraph:
 
     def _classify_loops(self) -> gtsam.Values:
         """Graduated non-convexity (truncated least squares) over the whole graph from the
-        current estimate; sets which loop factors are inliers and returns the solution."""
+        current estimate; sets which loop factors are inliers and returns the solution.
+
+        GTSAM's GNC re-weights every factor by cloning it, which a factor written in Python
+        (the drift factor) cannot do; so for the classification the seams enter as plain
+        between factors with the drift rate held at its current estimate, and the solution
+        keeps that estimate (iSAM2 then solves for it again with the inliers)."""
+        rate = None
         graph = self._chain_with(self._loop_factors)
+        if self._drift_seams:
+            rate = float(self._values.atVector(DRIFT_KEY)[0])
+            for k, (i, j, z, distance, noise) in self._drift_seams.items():
+                graph.replace(k, gtsam.BetweenFactorPose2(i, j, drift_corrected(z, rate, distance), noise))
         params = gtsam.GncLMParams()
         params.setLossType(gtsam.GncLossType.TLS)
         params.setKnownInliers(list(range(self._chain_factors.size())))
@@ -340,6 +377,8 @@ class PoseGraph:
         result = gnc.optimize()
         weights = np.asarray(gnc.getWeights(), dtype=float)[self._chain_factors.size():]
         self._loop_inlier = weights > 0.5
+        if rate is not None:     # held, not solved for: the prior alone pulled it to 0
+            result.update(DRIFT_KEY, np.array([rate]))
         return result
 
     def _update(self) -> None:
@@ -446,6 +485,17 @@ class PoseGraph:
     def poses(self) -> np.ndarray:
         """Current estimates (n, 3) of all nodes."""
         return self._poses[:self._size].copy()
+
+    def drift_rate(self) -> tuple[float, float]:
+        """The seams' shared heading drift rate (rad/m): its current estimate and, once
+        optimised, its marginal σ (the prior's before; (0, 0) without one)."""
+        if self.drift_rate_sigma == 0:
+            return 0.0, 0.0
+        rate = float(self._values.atVector(DRIFT_KEY)[0])
+        if self._optimized_size == 0:
+            return rate, self.drift_rate_sigma
+        self._calls.append(("drift_rate",))     # a marginal query fills iSAM2's caches
+        return rate, float(np.sqrt(self._isam.marginalCovariance(DRIFT_KEY)[0, 0]))
 
     def _check_optimized(self, i: int, name: str) -> int:
         i = self._check_node(i, name)
