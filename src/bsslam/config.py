@@ -727,6 +727,11 @@ class SubmapConfig:
             (:func:`~bsslam.submaps.backend.seam_covariance`); 0 takes the filter's
             covariance as it is.
         seam_drift_rad_per_m: … and (this × the distance)² to its heading variance (rad/m).
+        drift_rate_sigma_rad_per_m: σ of a heading drift rate every seam shares (rad/m):
+            an unknown of the pose graph, zero-mean a priori, that turns each seam by
+            (rate × the distance travelled in its submap); the loop closures estimate it
+            and it corrects the seams no loop closure reaches
+            (:mod:`~bsslam.submaps.drift_factor`). 0 leaves it out.
         point_spacing_m: spacing of the points sampled on a frozen submap's splines for
             matching (m).
         loop_sigmas: a loop-closure search covers this many σ of the relative pose
@@ -864,6 +869,7 @@ class SubmapConfig:
     carry_over_m: float = 10.0
     seam_drift_m_per_m: float = 0.01
     seam_drift_rad_per_m: float = 0.001
+    drift_rate_sigma_rad_per_m: float = 0.0
     point_spacing_m: float = 0.05
     loop_sigmas: float = 3.0
     loop_min_window_m: float = 2.0
@@ -898,6 +904,8 @@ class SubmapConfig:
         _check(0 <= self.carry_over_m <= 100.0, "submaps.carry_over_m must be in [0, 100] m")
         _check(0 <= self.seam_drift_m_per_m <= 1.0, "submaps.seam_drift_m_per_m must be in [0, 1] m/m")
         _check(0 <= self.seam_drift_rad_per_m <= 0.1, "submaps.seam_drift_rad_per_m must be in [0, 0.1] rad/m")
+        _check(0 <= self.drift_rate_sigma_rad_per_m <= 0.1,
+               "submaps.drift_rate_sigma_rad_per_m must be in [0, 0.1] rad/m")
         _check(0 < self.point_spacing_m <= 1.0, "submaps.point_spacing_m must be in (0, 1] m")
         _check(self.loop_sigmas > 0, "submaps.loop_sigmas must be > 0")
         # The window is the correlative search's, on the default front end's coarse grid

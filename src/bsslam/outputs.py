@@ -65,6 +65,10 @@ def summarize(result: RunResult, reference: Trajectory | None = None, exact_refe
     if getattr(result, "submaps", None) is not None:
         # splines of two submaps on one wall are one surface: the map's walls counted once
         summary["surfaces"] = len({m.surface for m in result.map})
+        rate, sigma = result.submaps.graph.drift_rate()
+        if sigma > 0:    # the seams' shared heading drift, as the loop closures found it
+            summary["drift_rate_deg_per_100m"] = round(float(np.degrees(rate) * 100.0), 4)
+            summary["drift_rate_sigma_deg_per_100m"] = round(float(np.degrees(sigma) * 100.0), 4)
     # ATE aligns the trajectory rigidly, which takes two poses: a run of one scan (--steps 1,
     # or one interrupted at its first) has none to report
     if ref is not None and len(ref) and result.steps >= 2:

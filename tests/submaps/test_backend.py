@@ -362,6 +362,33 @@ def test_a_frozen_submap_keeps_the_seam_covariance(double_loop):
     assert first.end_covariance[2, 2] >= (cfg.seam_drift_rad_per_m * cfg.max_distance_m) ** 2
 
 
+def test_each_seam_reaches_the_graph_with_the_distance_travelled_in_its_submap(double_loop):
+    """The shared drift rate turns each seam by rate × distance: the distances the graph is
+    given are the odometry's path in each submap, the last (still open) one aside."""
+    data, result, _ = double_loop
+    slam = result.submaps
+    given = np.array([call[3] for call in slam.graph._calls if call[0] == "add_node"])
+    assert len(given) == len(slam.frozen)
+    path = np.hypot(*np.diff(data.ground_truth.poses[:, :2], axis=0).T).sum()
+    assert np.all(given <= slam.config.submaps.max_distance_m + 1.0)   # one step past the bound
+    assert given.sum() == pytest.approx(path, rel=0.1)     # odometry's path, not the truth's
+
+
+def test_a_run_with_the_shared_drift_rate_reports_it():
+    """``drift_rate_sigma_rad_per_m`` > 0: the graph holds the rate, summary.json reports it
+    (°/100 m) with its σ, and in simulation, where nothing drifts the same way throughout,
+    it is within 3σ of zero."""
+    from bsslam.outputs import summarize
+    data = simulate(get_world("rounded-room"), SimConfig(), seed=3, steps=120)
+    result = run_dataset(data, _config(drift_rate_sigma_rad_per_m=0.001))
+    rate, sigma = result.submaps.graph.drift_rate()
+    assert 0 < sigma < 0.001 and abs(rate) < 3 * sigma
+    summary = summarize(result)
+    assert summary["drift_rate_deg_per_100m"] == pytest.approx(np.degrees(rate) * 100, abs=1e-4)
+    assert summary["drift_rate_sigma_deg_per_100m"] == pytest.approx(np.degrees(sigma) * 100, abs=1e-4)
+    assert "drift_rate_deg_per_100m" not in summarize(run_dataset(data, _config()))
+
+
 def test_the_graph_vouches_only_for_matches_whose_window_covered_its_region():
     """A search window covers ``loop_sigmas`` σ of the graph's relative pose unless
     :func:`search_window` clipped it at its maximum; a heading window of π covers every

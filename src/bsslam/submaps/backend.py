@@ -156,7 +156,8 @@ class SubmapSLAM:
         cfg = self.config.submaps
         self.graph = PoseGraph(np.asarray(initial_pose, dtype=float), anchor, loop_outliers=cfg.loop_outliers,
                                robust_kernel_width=cfg.robust_kernel_width,
-                               loop_inlier_probability=cfg.loop_inlier_probability)
+                               loop_inlier_probability=cfg.loop_inlier_probability,
+                               drift_rate_sigma=cfg.drift_rate_sigma_rad_per_m)
         self.graph.optimize()
         self.frozen: list[FrozenSubmap] = []
         self._frozen_bytes = 0
@@ -277,7 +278,7 @@ class SubmapSLAM:
         frozen = FrozenSubmap(k, splines, matching_shape(splines, cfg), local.pose, end_cov, local.steps)
         self.frozen.append(frozen)
         self._frozen_bytes += frozen.nbytes
-        self.graph.add_node(frozen.end_pose, _proper(frozen.end_covariance))
+        self.graph.add_node(frozen.end_pose, _proper(frozen.end_covariance), self._distance)
         self.graph.optimize()
         self._bases = self.graph.poses()
         if self._close_loops(k):
