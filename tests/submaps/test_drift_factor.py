@@ -14,7 +14,7 @@ from scipy.optimize import least_squares
 from bsslam import se2
 from bsslam.submaps.drift_factor import drift_corrected, drift_error
 from bsslam.submaps.pose_graph import PoseGraph
-from tests.submaps.test_pose_graph import se2_log, whitener
+from .test_pose_graph import se2_log, whitener
 
 
 def _pose(rng) -> gtsam.Pose2:
