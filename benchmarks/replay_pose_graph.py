@@ -7,7 +7,8 @@ configuration, no second pass; ``--seed`` moves every range by 1 mm of seeded no
 ``bsslam bench --perturb``), keeps the submaps' odometry-like constraints and every
 accepted loop closure, then builds the pose graph again from them, in the run's order, with
 ``loop_outliers`` = ``cauchy``, ``gnc`` and ``none`` (every loop closure a plain Gaussian),
-and with no loop closure at all. For each it prints the time spent in the graph (one
+and with no loop closure at all; and with ``gnc`` and a heading drift rate all seams share
+(``--drift-rate-sigma``, rad/m; ``submaps.drift_rate_sigma_rad_per_m``). For each it prints the time spent in the graph (one
 process, one after the other: compare them as ratios) and, with a reference, the ATE of
 the submap bases (the reference pose at each base's scan) and how many of the loop
 closures it keeps are wrong (off by more than 0.3 m + 5 m/rad × heading error against the
@@ -47,17 +48,18 @@ def rigid_ate(estimate: np.ndarray, reference: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((estimate @ rotation.T + translation - reference) ** 2, axis=1))))
 
 
-def solve(edges, loops, guard: str | None) -> tuple[PoseGraph, float]:
+def solve(edges, loops, guard: str | None, distances=None, drift_rate_sigma: float = 0.0) -> tuple[PoseGraph, float]:
     """The graph rebuilt in the run's order: a node per submap, each submap's loop
     closures added and optimised once its node is in. Returns it and its seconds."""
     start = time.perf_counter()
-    graph = PoseGraph(np.zeros(3), loop_outliers=guard)
+    graph = PoseGraph(np.zeros(3), loop_outliers=guard, drift_rate_sigma=drift_rate_sigma)
     graph.optimize()
     by_query: dict[int, list] = {}
     for loop in loops:
         by_query.setdefault(loop.query, []).append(loop)
+    distances = np.zeros(len(edges)) if distances is None else distances
     for k, (pose, covariance) in enumerate(edges):
-        graph.add_node(pose, _proper(covariance))
+        graph.add_node(pose, _proper(covariance), distances[k])
         for loop in by_query.get(k + 1, []):
             graph.add_loop(loop.reference, loop.query, loop.relative, _proper(loop.covariance, 5.0))
         graph.optimize()
@@ -69,6 +71,8 @@ def main() -> None:
     parser.add_argument("log", type=Path)
     parser.add_argument("--seed", type=int, default=None, help="1 mm of range noise with this seed")
     parser.add_argument("--reference", type=Path, default=None, help="default: LOG with .gt.txt if it exists")
+    parser.add_argument("--drift-rate-sigma", type=float, default=5e-4,
+                        help="σ (rad/m) of the seams' shared heading drift rate in the last variant")
     args = parser.parse_args()
 
     dataset = open_dataset(args.log)
@@ -77,6 +81,7 @@ def main() -> None:
     result = run_dataset(dataset, SLAMConfig().replace(backend="submaps", relocalize=False))
     slam = result.submaps
     edges = [(f.end_pose, f.end_covariance) for f in slam.frozen]
+    distances = slam.graph.distances
     loops = list(slam.loops)
     print(f"{args.log.name}{'' if args.seed is None else f' (seed {args.seed})'}: {len(edges) + 1} submap "
           f"bases, {len(loops)} loop closures")
@@ -99,12 +104,12 @@ def main() -> None:
                 wrong[m] = np.hypot(e[0], e[1]) + HEADING_WEIGHT_M * abs(e[2]) > WRONG_M
         print(f"  wrong loop closures against the reference: {int(wrong.sum())}")
 
-    variants = [("cauchy", loops, "cauchy"), ("gnc", loops, "gnc"), ("none (all Gaussian)", loops, None),
-                ("no loop closure", [], None)]
+    variants = [("cauchy", loops, "cauchy", 0.0), ("gnc", loops, "gnc", 0.0), ("none (all Gaussian)", loops, None, 0.0),
+                ("no loop closure", [], None, 0.0), ("gnc, shared drift rate", loops, "gnc", args.drift_rate_sigma)]
     if wrong is not None:
-        variants.append(("only the right ones", [lp for lp, w in zip(loops, wrong) if not w], None))
-    for name, subset, guard in variants:
-        graph, seconds = solve(edges, subset, guard)
+        variants.append(("only the right ones", [lp for lp, w in zip(loops, wrong) if not w], None, 0.0))
+    for name, subset, guard, sigma in variants:
+        graph, seconds = solve(edges, subset, guard, distances, sigma)
         line = f"  {name:22s} graph {seconds:6.2f} s"
         if truth is not None:
             known = np.all(np.isfinite(truth), axis=1)
@@ -112,6 +117,9 @@ def main() -> None:
             if subset is loops and loops:
                 kept = graph.loop_weights() >= 0.5
                 line += f"   kept {int(kept.sum())}/{len(loops)}, of them wrong {int(np.sum(kept & wrong))}"
+        if sigma > 0:
+            rate, rate_sigma = graph.drift_rate()
+            line += f"   rate {np.degrees(rate) * 100:+.2f} ± {np.degrees(rate_sigma) * 100:.2f}°/100 m"
         print(line)
 
 

@@ -478,6 +478,11 @@ class PoseGraph:
         """Node pairs (i, j) of the loop factors, indexed by loop id."""
         return list(self._loop_pairs)
 
+    @property
+    def distances(self) -> np.ndarray:
+        """(nodes − 1,) the distance (m) given with each odometry factor, in order."""
+        return np.array([c[3] if len(c) > 3 else 0.0 for c in self._calls if c[0] == "add_node"], dtype=float)
+
     def pose(self, i: int) -> np.ndarray:
         """Current estimate (3,) of node i (x m, y m, φ rad)."""
         return self._poses[self._check_node(i, "i")].copy()
