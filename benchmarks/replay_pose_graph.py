@@ -1,15 +1,16 @@
 """One run's pose graph solved again with each guard against wrong loop closures.
 
-    python benchmarks/replay_pose_graph.py LOG [--seed N] [--reference LOG.gt.txt]
+    python benchmarks/replay_pose_graph.py LOG [--seed N] [--reference LOG.gt.txt] [--config X.yaml]
 
 A benchmark, not a test. It runs LOG once with the submap backend (the default
-configuration, no second pass; ``--seed`` moves every range by 1 mm of seeded noise, as
-``bsslam bench --perturb``), keeps the submaps' odometry-like constraints and every
-accepted loop closure, then builds the pose graph again from them, in the run's order, with
-``loop_outliers`` = ``cauchy``, ``gnc`` and ``none`` (every loop closure a plain Gaussian),
-and with no loop closure at all; and with ``gnc`` and a heading drift rate all seams share
-(``--drift-rate-sigma``, rad/m; ``submaps.drift_rate_sigma_rad_per_m``). For each it prints the time spent in the graph (one
-process, one after the other: compare them as ratios) and, with a reference, the ATE of
+configuration or ``--config``'s, no second pass; ``--seed`` moves every range by 1 mm of
+seeded noise, as ``bsslam bench --perturb``), keeps the submaps' odometry-like constraints
+and every accepted loop closure, then builds the pose graph again from them, in the run's
+order, with ``loop_outliers`` = ``cauchy``, ``gnc`` and ``none`` (every loop closure a
+plain Gaussian), and with no loop closure at all; and with ``gnc`` and a heading drift rate
+all seams share (``--drift-rate-sigma``, rad/m; ``submaps.drift_rate_sigma_rad_per_m``).
+For each it prints the time spent in the graph (one process, one after the other: compare
+them as ratios) and, with a reference, the ATE of
 the submap bases (the reference pose at each base's scan) and how many of the loop
 closures it keeps are wrong (off by more than 0.3 m + 5 m/rad × heading error against the
 reference). With a reference it also solves with only the right loop closures: what a
@@ -28,6 +29,7 @@ from bsslam.config import SLAMConfig
 from bsslam.eval.alignment import align_rigid_2d
 from bsslam.eval.association import nearest_stamps
 from bsslam.io import open_dataset
+from bsslam.io.config_file import load_config
 from bsslam.io.trajectory_file import read_trajectory
 from bsslam.perturbed_dataset import PerturbedDataset
 from bsslam.pipeline import run_dataset
@@ -71,6 +73,7 @@ def main() -> None:
     parser.add_argument("log", type=Path)
     parser.add_argument("--seed", type=int, default=None, help="1 mm of range noise with this seed")
     parser.add_argument("--reference", type=Path, default=None, help="default: LOG with .gt.txt if it exists")
+    parser.add_argument("--config", type=Path, help="a YAML configuration for the run (the replays are as described)")
     parser.add_argument("--drift-rate-sigma", type=float, default=5e-4,
                         help="σ (rad/m) of the seams' shared heading drift rate in the last variant")
     args = parser.parse_args()
@@ -78,7 +81,8 @@ def main() -> None:
     dataset = open_dataset(args.log)
     if args.seed is not None:
         dataset = PerturbedDataset(dataset, 0.001, args.seed)
-    result = run_dataset(dataset, SLAMConfig().replace(backend="submaps", relocalize=False))
+    config = load_config(args.config) if args.config else SLAMConfig()
+    result = run_dataset(dataset, config.replace(backend="submaps", relocalize=False))
     slam = result.submaps
     edges = [(f.end_pose, f.end_covariance) for f in slam.frozen]
     distances = slam.graph.distances
