@@ -6,7 +6,9 @@ solved incrementally by GTSAM's iSAM2.
   *is* the map frame).
 - **Odometry factors** tie consecutive submaps: the base pose of submap i seen from
   submap i−1, as the local filter estimated it when submap i−1 was frozen. They come from
-  the filter itself, so they are trusted: a plain Gaussian noise model.
+  the filter itself, so they are trusted: a plain Gaussian noise model. Optionally
+  (``drift_rate_sigma``) they share one more unknown, a heading drift rate that turns
+  each of them by rate × the distance travelled (:mod:`bsslam.submaps.drift_factor`).
 - **Loop-closure factors** tie a submap to an old one it was matched against. Matching
   can be fooled (repetitive corridors, façades, symmetric rooms): a wrong match can look as
   good locally as a right one (inlier fractions of 0.85–1.0 on the campus), so only the
