@@ -33,6 +33,7 @@ def _check(condition: bool, message: str) -> None:
 # physical ceilings shared by several sections
 MAX_SIGMA_M = 10.0          # a standard deviation of a range or position beyond 10 m says nothing
 MAX_SIGMA_RAD = 2 * math.pi   # … of an angle beyond a full turn
+MAX_BEARING_SIGMA_RAD = 0.1   # a beam's bearing σ (rad) beyond ~6°: no laser's beam is that wide
 MAX_FACTOR = 1e6            # inflation factors on variances
 
 
@@ -226,6 +227,16 @@ class ObservationConfig:
             60 steps without extension, mean NEES over the steps (3 dof): rounded-room 3.4 /
             2.7 / 1.7 for 0 / 2.5 / 5 mm; with 2.5 mm corridor-loop 3.6 and mixed 3.2. 5 mm
             was needed only while corner bias went undetected (see ``fit_bias_sigmas``).
+        sigma_bearing_rad: σ of a beam's bearing (rad): the beam is a cone, not a ray, and
+            its direction is known only as well as the scan's timing and the de-skewing of
+            the robot's motion during the sweep. On a wall met at incidence i from z metres
+            it moves the range by z·tan(i)·σ, added to the range's own variance beam by
+            beam in the update: far, oblique beams weigh less. 0 = the paper's exact
+            bearings (the simulator's experiments set 0: its bearings are exact). 10 mrad
+            (0.57°, about half the shared logs' 1° beam spacing) was measured against 5
+            mrad and 0 on the shared logs; new splines keep the range noise alone, since
+            carrying the bearing's share into their covariance cost CSAIL and the campus
+            (docs/real_logs.md, "A beam's bearing").
         sigma_shared_m: σ of a range error shared by every beam of one scan that hits the
             same map spline (m), on top of their independent ``sigma_range_m``: a wall that
             is not where its spline says, a laser biased on one surface. Without it the ~90
@@ -251,6 +262,7 @@ class ObservationConfig:
 
     sigma_range_m: float = 0.03
     sigma_model_m: float = 0.0025
+    sigma_bearing_rad: float = 0.0
     sigma_shared_m: float = 0.0
     significant_bends_only: bool = False
     r_inflation: float = 1.0
@@ -264,6 +276,8 @@ class ObservationConfig:
         _check(0 < self.sigma_range_m <= MAX_SIGMA_M, f"observation.sigma_range_m must be in (0, {MAX_SIGMA_M:g}] m")
         _check(0 <= self.sigma_model_m <= MAX_SIGMA_M, f"observation.sigma_model_m must be in [0, {MAX_SIGMA_M:g}] m")
         _check(0 <= self.sigma_shared_m <= MAX_SIGMA_M, f"observation.sigma_shared_m must be in [0, {MAX_SIGMA_M:g}] m")
+        _check(0 <= self.sigma_bearing_rad <= MAX_BEARING_SIGMA_RAD,
+               f"observation.sigma_bearing_rad must be in [0, {MAX_BEARING_SIGMA_RAD:g}] rad")
         _check(0 < self.r_inflation <= MAX_FACTOR, f"observation.r_inflation must be in (0, {MAX_FACTOR:g}]")
         _check(0 < self.gate_probability < 1, "observation.gate_probability must be in (0, 1)")
         _check(0 < self.max_incidence_rad < math.pi / 2, "observation.max_incidence_rad must be in (0, π/2)")

@@ -88,6 +88,23 @@ class Linearization:
     hit_t: np.ndarray
 
 
+def bearing_derivatives(H_c: np.ndarray, ranges_predicted: np.ndarray, beam_angles: np.ndarray) -> np.ndarray:
+    """(m,) ∂z/∂τ of m beams (m/rad): how a beam's predicted range moves with its bearing.
+
+    The range depends on the bearing only through the beam angle μ, and ∂z/∂μ = z·r (the
+    module docstring), r = x̃'/ỹ' the tangent ratio (tan of the incidence). The first two
+    columns of a beam's Jacobian are g = ∂z/∂p_l = (−cos μ − r sin μ, −sin μ + r cos μ),
+    so r = −g_x sin μ + g_y cos μ, whatever the laser's offset.
+
+    Args:
+        H_c: (m, c) the beams' Jacobians, the robot's x and y first (the standard ones,
+            before an estimator's change of coordinates).
+        ranges_predicted: (m,) predicted ranges z (m); beam_angles: (m,) world μ (rad).
+    """
+    r = -H_c[:, 0] * np.sin(beam_angles) + H_c[:, 1] * np.cos(beam_angles)
+    return ranges_predicted * r
+
+
 class Drops(Protocol):
     """Where dropped beams are counted (:class:`~bsslam.slam.filter.StepReport`)."""
 
@@ -114,16 +131,19 @@ class MeasurementModel(Protocol):
 
 class RangeModel:
     """The ray–spline range model. Each beam's range error is its own, of variance
-    R = (σ_range² + σ_model²)·inflation, plus one shared by every beam of the scan on the
-    same map spline, of variance σ_shared²·inflation (m²): the beams of one wall are not
-    independent where the wall is not where its spline says or the laser is biased on that
-    surface. Implements :class:`MeasurementModel`.
+    R = (σ_range² + σ_model²)·inflation, plus (∂z/∂τ σ_bearing)²·inflation from its bearing
+    τ (:func:`bearing_derivatives`; the rows are rescaled to variance R, see
+    :meth:`linearize`), plus one shared by every beam of the scan on the same map spline, of
+    variance σ_shared²·inflation (m²): the beams of one wall are not independent where the
+    wall is not where its spline says or the laser is biased on that surface. Implements
+    :class:`MeasurementModel`.
 
     Args:
         config: the observation settings (noise, beam stride, grazing limit).
 
     Attributes:
         R: the independent variance (m²); shared: the shared one (m²);
+        bearing_variance: σ_bearing²·inflation (rad²);
         row_variance: a beam's whole variance R + shared (m²), what its gates weigh.
     """
 
@@ -131,6 +151,7 @@ class RangeModel:
         self.significant_bends_only = config.significant_bends_only
         self.R = (config.sigma_range_m ** 2 + config.sigma_model_m ** 2) * config.r_inflation
         self.shared = config.sigma_shared_m ** 2 * config.r_inflation
+        self.bearing_variance = config.sigma_bearing_rad ** 2 * config.r_inflation
         self.row_variance = self.R + self.shared
         self.stride = config.beam_stride
         self.max_tan = math.tan(config.max_incidence_rad)
@@ -161,6 +182,12 @@ class RangeModel:
 
         Beams that miss their spline or hit it at grazing incidence are dropped (and
         counted when ``drops`` is given). Returns None when no beam is left.
+
+        With a bearing σ each row j (its Jacobian and residual) is multiplied by
+        √(R / (R + σ_τ² (∂z_j/∂τ)²)): the rows then have the one variance R the
+        compressed update needs (a diagonal R would cost a factorisation of S) and carry
+        exactly the information of the beams with their own variances; the gates, which
+        compare a row's residual with its variance, weigh each beam by its own.
         """
         cols, H_c, residual, rows, hit_t, missed, grazing = curves.linearize(
             x, laser_offset, beams.curve, beams.bearings, beams.ranges, beams.t0, self.max_tan)
@@ -169,6 +196,11 @@ class RangeModel:
             drops.drop("grazing", grazing)
         if rows.size == 0:
             return None
+        if self.bearing_variance > 0.0:
+            dz_dtau = bearing_derivatives(H_c, ranges_predicted=beams.ranges[rows] - residual,
+                                          beam_angles=x[2] + laser_offset[2] + beams.bearings[rows])
+            scale = np.sqrt(self.R / (self.R + self.bearing_variance * dz_dtau ** 2))
+            H_c, residual = H_c * scale[:, None], residual * scale
         return Linearization(cols, H_c, residual, self.R, rows, hit_t)
 
     def select(self, beams: Beams, lin: Linearization, keep: np.ndarray) -> tuple[Beams, Linearization]:
