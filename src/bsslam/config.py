@@ -262,7 +262,7 @@ class ObservationConfig:
 
     sigma_range_m: float = 0.03
     sigma_model_m: float = 0.0025
-    sigma_bearing_rad: float = 0.0
+    sigma_bearing_rad: float = 0.01
     sigma_shared_m: float = 0.0
     significant_bends_only: bool = False
     r_inflation: float = 1.0
