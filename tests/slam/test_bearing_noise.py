@@ -15,7 +15,7 @@ from bsslam.config import ObservationConfig
 from bsslam.errors import ConfigError
 from bsslam.slam.features import SplineFeature
 from bsslam.slam.map_curves import MapCurves
-from bsslam.slam.measurement import Beams, RangeModel, bearing_derivatives
+from bsslam.slam.measurement import Beams, RangeModel, bearing_derivatives, laser_pose
 from bsslam.spline import fit_curve
 
 from dense_ekf import DenseGain
@@ -39,11 +39,6 @@ def _wavy_wall() -> np.ndarray:
 def _beams(bearings, ranges, t0) -> Beams:
     return Beams(np.zeros(len(bearings), dtype=np.intp), np.asarray(bearings, float), np.asarray(ranges, float),
                  np.asarray(t0, float))
-
-
-def _laser(pose):
-    c, s = math.cos(pose[2]), math.sin(pose[2])
-    return pose[:2] + np.array([c * OFFSET[0] - s * OFFSET[1], s * OFFSET[0] + c * OFFSET[1]]), pose[2] + OFFSET[2]
 
 
 def test_bearing_derivative_matches_central_differences():
@@ -111,7 +106,8 @@ def test_bearing_noise_explains_scans_whose_bearings_err():
     dof = 0
     for _ in range(30):
         pose = np.array([rng.uniform(-1, 1), rng.uniform(-1.0, 0.5), rng.uniform(-0.3, 0.3)])
-        origin, heading = _laser(pose)
+        laser = laser_pose(pose, OFFSET)
+        origin, heading = laser[:2], laser[2]
         bearings = np.linspace(0.15, 1.5, 60) - heading                 # world angles, incidence up to 81°
         true_mu = heading + bearings + sigma_b * rng.standard_normal(60)
         ranges = (2.0 - origin[1]) / np.sin(true_mu) + sigma_r * rng.standard_normal(60)
