@@ -74,8 +74,9 @@ class Linearization:
 
     Attributes:
         cols: (c,) touched state indices (the pose's 0, 1, 2 first); H_c: (m, c) the
-            Jacobian on them; residual: (m,) z − h(x) (m); R: the ranges' noise, r for
-            R = r I (m²);
+            Jacobian on them; residual: (m,) z − h(x) (m); with a bearing σ both rows
+            scaled so that each has variance R (:meth:`RangeModel.linearize`); R: the
+            ranges' noise, r for R = r I (m²);
         beam: (m,) the beam (index into the linearised :class:`Beams`) of each row;
         hit_t: (m,) map-spline parameter of each hit (m).
     """
