@@ -32,7 +32,6 @@ What the shared logs gave is in docs/real_logs.md ("Where the error lives").
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -46,7 +45,7 @@ from bsslam.trajectory import Trajectory
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from graph_consistency import reference_bases, run_log  # noqa: E402
-from seam_sources import rigid_rms  # noqa: E402
+from seam_sources import logs_and_seeds, rigid_rms  # noqa: E402
 
 
 def piecewise_fit(estimate: Trajectory, reference: Trajectory, piece: np.ndarray) -> tuple[float, np.ndarray]:
@@ -106,10 +105,7 @@ def report(log: Path, seed: int) -> list[float]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("logs", nargs="+", type=Path, help="CARMEN logs with a .gt.txt reference beside them")
-    parser.add_argument("--seeds", nargs="+", type=int, default=[0], help="seeds of the 1 mm range noise")
-    args = parser.parse_args()
+    args = logs_and_seeds(__doc__.splitlines()[0])
     print("| log | seed | submaps | ATE (m) | inside the submaps | the front end inside the submaps | bases alone | "
           "submaps turned against their predecessors, RMS (°) |")
     print("|---|---|---|---|---|---|---|---|")

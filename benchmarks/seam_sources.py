@@ -146,11 +146,17 @@ def correlation(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.corrcoef(a, b)[0, 1]) if a.shape[0] > 2 else math.nan
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def logs_and_seeds(description: str) -> argparse.Namespace:
+    """The command line of a benchmark that runs LOG [LOG ...] once per ``--seeds`` seed:
+    ``args.logs`` (paths) and ``args.seeds`` (ints, [0] by default)."""
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument("logs", nargs="+", type=Path, help="CARMEN logs with a .gt.txt reference beside them")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0], help="seeds of the 1 mm range noise")
-    args = parser.parse_args()
+    return parser.parse_args()
+
+
+def main() -> None:
+    args = logs_and_seeds(__doc__.splitlines()[0])
     print("| log | seed | seams | filter's seams: median error, RMS heading | front end's chain | odometry | "
           "heading drift °/100 m, filter / front end | bases through the seams alone, RMS after a rigid fit (m), "
           "filter / front end | ATE (m) | ATE without the best linear heading drift (°/100 m) | "
