@@ -5,18 +5,18 @@ inside the submaps (the local filter and the second pass).
 
 A benchmark, not a test (prints figures, asserts nothing). Each LOG (with ``.gt.txt``
 beside it) runs once per seed with the default configuration, every range moved by 1 mm of
-seeded noise (as ``bsslam bench --perturb``). Per run it prints the ATE (m) of:
+seeded noise (as ``bsslam bench --perturb``). Per run it prints:
 
-- **the run**: its final trajectory (``trajectory.tum``);
-- **inside the submaps**: the same poses with each submap's share of them moved rigidly
+- **the run**: the ATE (m) of its final trajectory (``trajectory.tum``);
+- **inside the submaps** (m): the same poses with each submap's share of them moved rigidly
   onto the reference (the best rigid fit of that submap's positions alone), so what is
   left is the shape the submaps give their own stretch of path: the floor that no
   placement of the submaps as rigid pieces (no pose graph, however good) goes below.
   Moving each submap onto the reference pose of its base scan instead would carry that
   one pose's heading error (a few tenths of a degree) over the whole submap;
-- **the front end inside the submaps**: the front end's own poses (``frontend.tum``) over
+- **the front end inside the submaps** (m): the front end's own poses (``frontend.tum``) over
   the same stretches, fitted the same way: the local error without the spline map;
-- **the bases alone**: the submaps' bases (the graph's nodes) against the reference poses
+- **the bases alone** (m): the submaps' bases (the graph's nodes) against the reference poses
   of their base scans, RMS after the best rigid fit;
 - **the submaps' turns**: the rotation of each submap's own fit less its predecessor's,
   RMS (°): how far the seams err in heading once the pose graph has placed the submaps,
@@ -71,7 +71,8 @@ def piecewise_fit(estimate: Trajectory, reference: Trajectory, piece: np.ndarray
 
 
 def report(log: Path, seed: int) -> list[float]:
-    """Print one run's row; return its four figures (m), NaN where not measurable."""
+    """Print one run's row; return its figures — the ATE, inside, front end inside and
+    bases alone (m), the turn (°) — NaN where not measurable."""
     result = run_log(log, seed, SLAMConfig())
     submaps = result.submaps
     if submaps is None or not submaps.frozen:
@@ -85,8 +86,8 @@ def report(log: Path, seed: int) -> list[float]:
     truth = reference.poses[index]
     final = result.trajectory
     bases = submaps.graph.poses()
-    # one submap per final pose: the final trajectory has a pose per record, the steps a
-    # submap per filter step; records and steps share stamps
+    # the submap of each final (and front-end) pose: ``step_submaps`` holds one per pose of
+    # the online estimate, whose stamps the other trajectories share
     submap_of = np.searchsorted(result.estimate.stamps, final.stamps, side="right") - 1
     submap_of = steps[np.clip(submap_of, 0, len(steps) - 1)]
     frontend = result.frontend
