@@ -48,26 +48,31 @@ from graph_consistency import reference_bases, run_log  # noqa: E402
 from seam_sources import logs_and_seeds, rigid_rms  # noqa: E402
 
 
-def piecewise_fit(estimate: Trajectory, reference: Trajectory, piece: np.ndarray) -> tuple[float, np.ndarray]:
+def piecewise_fit(estimate: Trajectory, reference: Trajectory, piece: np.ndarray
+                  ) -> tuple[float, np.ndarray, np.ndarray, int]:
     """``estimate`` against ``reference`` (poses paired by time) with each piece (``piece``,
-    (n,) a label per estimate pose) rigidly fitted on its own.
+    (n,) an integer label per estimate pose) rigidly fitted on its own.
 
     Returns:
-        the RMS position error after the fits (m), and (k,) the rotation of each piece's
-        fit (rad), the heading the piece is off by as a whole, in label order (pieces of
-        fewer than three poses left out).
+        the RMS position error after the fits (m); (k,) the labels of the pieces fitted and
+        (k,) the rotation of each one's fit (rad, unwrapped): the turn that puts the piece
+        onto the reference, the reference's heading less the piece's as a whole; and how
+        many pieces were left out for having fewer than three matched poses.
     """
     est_idx, ref_idx = associate(estimate, reference, 0.01, 0.0)
-    squared, turns = [], []
+    squared, labels, turns, skipped = [], [], [], 0
     for k in np.unique(piece[est_idx]):
         rows = piece[est_idx] == k
         if np.count_nonzero(rows) < 3:
+            skipped += 1
             continue
         a, b = estimate.poses[est_idx[rows], :2], reference.poses[ref_idx[rows], :2]
         rotation, translation = align_rigid_2d(a, b)
         squared.append(np.sum((a @ rotation.T + translation - b) ** 2, axis=1))
+        labels.append(k)
         turns.append(np.arctan2(rotation[1, 0], rotation[0, 0]))
-    return float(np.sqrt(np.mean(np.concatenate(squared)))), np.unwrap(np.array(turns))
+    rms = float(np.sqrt(np.mean(np.concatenate(squared)))) if squared else float("nan")
+    return rms, np.array(labels, dtype=int), np.unwrap(np.array(turns)), skipped
 
 
 def report(log: Path, seed: int) -> list[float]:
@@ -75,39 +80,40 @@ def report(log: Path, seed: int) -> list[float]:
     bases alone (m), the turn (°) — NaN where not measurable."""
     result = run_log(log, seed, SLAMConfig())
     submaps = result.submaps
+    empty = " | ".join([""] * 5)
     if submaps is None or not submaps.frozen:
-        print(f"| {log.name} | {seed} | no frozen submap | | | |")
+        print(f"| {log.name} | {seed} | no frozen submap | {empty} |")
         return [np.nan] * 5
-    steps = np.asarray(result.step_submaps)
     reference, index = reference_bases(result, log)
     if np.any(index < 0):
-        print(f"| {log.name} | {seed} | a base without a reference pose | | | |")
+        print(f"| {log.name} | {seed} | a base without a reference pose | {empty} |")
         return [np.nan] * 5
     truth = reference.poses[index]
-    final = result.trajectory
+    # ``step_submaps`` holds the submap of each pose of the online estimate; the final and
+    # the front end's trajectories have a pose at each of its stamps
+    steps = np.asarray(result.step_submaps)
+    final, frontend = result.trajectory, result.frontend
+    for name, trajectory in (("final", final), ("front end", frontend)):
+        if not np.array_equal(trajectory.stamps, result.estimate.stamps):
+            raise SystemExit(f"{log.name}: the {name} trajectory's stamps are not the online estimate's")
     bases = submaps.graph.poses()
-    # the submap of each final (and front-end) pose: ``step_submaps`` holds one per pose of
-    # the online estimate, whose stamps the other trajectories share
-    submap_of = np.searchsorted(result.estimate.stamps, final.stamps, side="right") - 1
-    submap_of = steps[np.clip(submap_of, 0, len(steps) - 1)]
-    frontend = result.frontend
-    fe_submap = steps[np.clip(np.searchsorted(result.estimate.stamps, frontend.stamps, side="right") - 1,
-                              0, len(steps) - 1)]
-    inside, turns = piecewise_fit(final, reference, submap_of)
-    fe_inside, _ = piecewise_fit(frontend, reference, fe_submap)
+    inside, labels, turns, skipped = piecewise_fit(final, reference, steps)
+    fe_inside, _, _, _ = piecewise_fit(frontend, reference, steps)
     # a submap's turn against the one before it: how far its seam errs in heading, with
     # the reference's per-pose error averaged over the submaps' poses
-    seam_turn = np.degrees(np.sqrt(np.mean(np.diff(turns) ** 2))) if len(turns) > 1 else np.nan
+    neighbours = np.diff(labels) == 1
+    seam_turn = np.degrees(np.sqrt(np.mean(np.diff(turns)[neighbours] ** 2))) if np.any(neighbours) else np.nan
     figures = [ate(final, reference)[0], inside, fe_inside, rigid_rms(bases[:len(truth), :2], truth[:, :2]),
                seam_turn]
-    print(f"| {log.name} | {seed} | {len(truth)} | " + " | ".join(f"{v:.3f}" for v in figures[:4])
+    note = f" ({skipped} left out)" if skipped else ""
+    print(f"| {log.name} | {seed} | {len(truth)}{note} | " + " | ".join(f"{v:.3f}" for v in figures[:4])
           + f" | {figures[4]:.2f} |", flush=True)
     return figures
 
 
 def main() -> None:
     args = logs_and_seeds(__doc__.splitlines()[0])
-    print("| log | seed | submaps | ATE (m) | inside the submaps | the front end inside the submaps | bases alone | "
+    print("| log | seed | submaps (fewer than three poses: left out) | ATE (m) | inside the submaps | the front end inside the submaps | bases alone | "
           "submaps turned against their predecessors, RMS (°) |")
     print("|---|---|---|---|---|---|---|---|")
     for log in args.logs:

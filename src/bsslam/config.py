@@ -739,12 +739,15 @@ class SubmapConfig:
             submap's base and the next one's gets (this × the distance travelled in the
             submap)² added to its x and y variance
             (:func:`~bsslam.submaps.backend.seam_covariance`); 0 takes the filter's
-            covariance as it is. The default is about what the shared logs' seams err by:
-            0.06–0.22 m over a submap's ~25 m (``benchmarks/seam_sources.py``,
-            docs/real_logs.md).
+            covariance as it is. The default, 0.125 m over a submap's ~25 m, is about what
+            the seams err by on Edmonton, Acapulco, ACES, Intel and CSAIL: 0.06–0.22 m
+            (a run's median; ``benchmarks/seam_sources.py``, docs/real_logs.md).
         seam_drift_rad_per_m: … and (this × the distance)² to its heading variance (rad/m);
-            the default, 0.7° over 25 m, is how far each submap turns against the one
-            before it on every shared log (0.63–0.74° RMS, ``benchmarks/error_budget.py``).
+            the default, 0.72° over 25 m, is how far each submap turns against the one
+            before it once the graph has placed them on Edmonton, Acapulco, ACES,
+            intel-noisy and CSAIL (0.63–0.74° RMS, ``benchmarks/error_budget.py``; the
+            seams against single reference poses, which err by a few tenths of a degree
+            themselves: 0.75–1.7° RMS).
         drift_rate_sigma_rad_per_m: σ of a heading drift rate every seam shares (rad/m):
             an unknown of the pose graph, zero-mean a priori, that turns each seam by
             (rate × the distance travelled in its submap); the loop closures estimate it
