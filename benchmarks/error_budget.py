@@ -113,7 +113,8 @@ def report(log: Path, seed: int) -> list[float]:
 
 def main() -> None:
     args = logs_and_seeds(__doc__.splitlines()[0])
-    print("| log | seed | submaps, the last open one too (those of fewer than three poses left out) | ATE (m) | inside the submaps | the front end inside the submaps | bases alone | "
+    print("| log | seed | submaps, the last open one too (those of fewer than three poses left out) | ATE (m) | "
+          "inside the submaps | the front end inside the submaps | bases alone | "
           "submaps turned against their predecessors, RMS (°) |")
     print("|---|---|---|---|---|---|---|---|")
     for log in args.logs:
