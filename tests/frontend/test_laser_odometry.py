@@ -326,6 +326,44 @@ def test_the_odometry_sigma_learned_from_the_matches_is_the_simulated_one(noise)
     assert off.odometry_scale() is None
 
 
+@pytest.mark.parametrize("noise", [1.0, 3.0])
+def test_a_fallback_is_as_wide_as_the_wheels_err(noise):
+    """The simulator draws the odometry's heading with σ = a + b·|Δφ| (× ``noise``); the
+    front end's model says 3° + 0.2·|Δφ| + 5°/m. With ``fallback_learned``, once 20 matches
+    are in, a fallback (an empty scan) gets the model's covariance with each σ scaled by the RMS disagreement the
+    matches measured: in heading, the RMS of the simulator's σ over the model's (the
+    oracle, from the true increments), 0.78–0.97 of it over seeds 0–5 (a match started
+    from the odometry's guess keeps a little of its error, so the disagreement comes out
+    short), here within [0.7, 1.1]. Not learning, or before 20 matches: the model's."""
+    motion = MotionNoiseConfig()
+    motion = replace(motion, a_phi_rad=noise * motion.a_phi_rad, b_phi=noise * motion.b_phi)
+    data = simulate(get_world("mixed"), SimConfig(sigma_range_m=0.01, motion=motion), seed=4, steps=150)
+    frames = list(data)
+    k = 140
+    empty = LaserScan(0.0, frames[k].scan.angles, np.full(frames[k].scan.angles.shape, np.inf), 8.0)
+    frames[k] = Frame(frames[k].stamp, frames[k].odometry, empty, frames[k].laser_offset)
+    cfg = FrontendConfig(fallback_learned=True)
+    lo, out = _run(frames[:k], cfg)
+    model = lo.odometry_covariance(between(frames[k - 1].odometry, frames[k].odometry))
+    expected = lo.fallback_covariance(model)
+    step = lo.step(frames[k])
+    assert step.fallback
+    np.testing.assert_allclose(step.covariance, expected)
+    true = between(data.ground_truth.poses[:k - 1], data.ground_truth.poses[1:k])
+    d = np.hypot(true[:, 0], true[:, 1])
+    sim_phi = motion.a_phi_rad + motion.b_phi * np.abs(true[:, 2])
+    model_phi = cfg.odom_sigma_rad + cfg.odom_sigma_rad_per_rad * np.abs(true[:, 2]) + cfg.odom_sigma_rad_per_m * d
+    oracle = float(np.sqrt(np.mean((sim_phi / model_phi) ** 2)))
+    learned = math.sqrt(expected[2, 2] / model[2, 2])
+    assert 0.7 < learned / oracle < 1.1, (learned, oracle)
+    assert np.all(np.diag(expected) < np.diag(model))
+    # not learning (the default): the model's covariance
+    off, _ = _run(frames[:k], FrontendConfig())
+    np.testing.assert_array_equal(off.fallback_covariance(model), model)
+    early, _ = _run(frames[:15], cfg)
+    np.testing.assert_array_equal(early.fallback_covariance(model), model)
+
+
 def test_the_learned_sigma_waits_for_enough_matches():
     data = simulate(get_world("mixed"), SimConfig(), seed=0, steps=15)
     lo, _ = _run(list(data))
