@@ -504,12 +504,14 @@ class FrontendConfig:
         fallback_learned: true: a fallback's covariance (the raw odometry increment where no
             match could be trusted) is the model's with each σ (Δx, Δy, Δφ) scaled by the
             RMS disagreement of the same matches with the odometry, once 20 are in: what
-            the wheels err by in a step (0.16–0.19 of the model's heading σ on the
-            synthetic logs, 0.30 on Intel's wheels, 0.64 on CSAIL's). false (default): the
-            model's, wide enough for the worst wheels. Only the campus falls back (about 80
-            of its 2008 scans): true takes its online covariance from cautious (median NEES
-            0.3) to calibrated (1.9) and halves its time, but 3 runs of 40 end 0.75–5.5 m
-            off (see :meth:`bsslam.frontend.LaserOdometry.fallback_covariance`).
+            the wheels err by in a step (in heading 0.16–0.18 of the model's σ on the
+            logs with synthetic drift, 0.30 on Intel's wheels, 0.64 on CSAIL's; with
+            ``odometry_learned_window`` 0 nothing is learned and the model's is used).
+            false (default): the model's, wide enough for the worst wheels. Of the shared
+            logs only the campus falls back often (about 80 of its 2008 scans; CSAIL and
+            intel-noisy once in some runs): true takes its online covariance from cautious
+            (median NEES 0.3) to calibrated (1.9) and halves its time, but 3 runs of 40
+            end 0.75–5.5 m off (see :meth:`bsslam.frontend.LaserOdometry.fallback_covariance`).
 
     Trust
         min_points: fewer valid points in the scan or in the reference → fall back.

@@ -351,7 +351,7 @@ def test_a_fallback_is_as_wide_as_the_wheels_err(noise):
     np.testing.assert_allclose(step.covariance, expected)
     true = between(data.ground_truth.poses[:k - 1], data.ground_truth.poses[1:k])
     d = np.hypot(true[:, 0], true[:, 1])
-    sim_phi = motion.a_phi_rad + motion.b_phi * np.abs(true[:, 2])
+    sim_phi = motion.a_phi_rad + motion.b_phi * np.abs(true[:, 2]) + motion.b_phi_per_m_rad * d
     model_phi = cfg.odom_sigma_rad + cfg.odom_sigma_rad_per_rad * np.abs(true[:, 2]) + cfg.odom_sigma_rad_per_m * d
     oracle = float(np.sqrt(np.mean((sim_phi / model_phi) ** 2)))
     learned = math.sqrt(expected[2, 2] / model[2, 2])
