@@ -297,3 +297,38 @@ class frames_dataset:
 
     def __iter__(self):
         return iter(self.frames)
+
+
+def test_a_fallback_the_walls_contradict_is_predicted_with_the_wide_covariance(data, config):
+    """With ``frontend.fallback_learned`` (the default), an increment holding a fallback carries the
+    wheels' learned σ (here 1 cm, 0.5°), and a trial step on a copy of the filter with the
+    wide covariance decides it: the increment turned 10° off the truth → the walls put the
+    pose beyond the learned prediction's 99 % region → the wide covariance; the true
+    increment → the learned one. The trial leaves the filter as it was, and without a
+    fallback nothing is tried."""
+    cfg = config.replace(frontend=dataclasses.replace(config.frontend, update_distance_m=0.0, update_angle_rad=0.0))
+    frames = list(data)
+    mapper = Mapper(cfg)
+    k = 30
+    for f in frames[:k]:
+        mapper.add(f.scan, f.odometry, f.stamp, f.laser_offset)
+    slam, frame = mapper._slam, frames[k]
+    truth = data.ground_truth.poses
+    learned = np.diag([0.01, 0.01, np.radians(0.5)]) ** 2
+    wide = np.diag([0.25, 0.25, np.radians(10.0)]) ** 2
+    true_delta = between(truth[k - 1], truth[k])
+    wrong_delta = true_delta + np.array([0.0, 0.0, np.radians(10.0)])
+    before = (slam.pose.copy(), slam.pose_covariance.copy(), slam.state_size)
+
+    mapper._motion.wide_covariance = None
+    cov, widened = mapper._checked_by_walls(slam, frame, wrong_delta, learned)
+    assert cov is learned and not widened
+    mapper._motion.wide_covariance = wide
+    cov, widened = mapper._checked_by_walls(slam, frame, true_delta, learned)
+    assert cov is learned and not widened
+    cov, widened = mapper._checked_by_walls(slam, frame, wrong_delta, learned)
+    assert cov is wide and widened
+
+    np.testing.assert_array_equal(slam.pose, before[0])
+    np.testing.assert_array_equal(slam.pose_covariance, before[1])
+    assert slam.state_size == before[2]

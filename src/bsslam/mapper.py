@@ -19,6 +19,7 @@ so the loop never branches on "visualise?".
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import time
@@ -29,6 +30,7 @@ import numpy as np
 
 from bsslam.blas_threads import one_blas_thread
 from bsslam.compiled import kernel_interrupts
+from bsslam.chi2 import chi2_quantile
 from bsslam.config import SLAMConfig
 from bsslam.dataset import Frame, SkipCounter
 from bsslam.deskewed_dataset import deskewed, odometry_velocity
@@ -189,6 +191,9 @@ class _Record:
 class _OdometryMotion:
     """Raw odometry increments under the filter's motion model; every scan is a filter step."""
 
+    #: no front end, no fallbacks (see :attr:`_FrontendMotion.wide_covariance`)
+    wide_covariance = None
+
     def __init__(self) -> None:
         self._prev: np.ndarray | None = None
 
@@ -213,6 +218,15 @@ class _FrontendMotion:
         root = math.sqrt(config.filter_translation_scale)
         self._trust = np.outer([root, root, 1.0], [root, root, 1.0])
         self._pose: np.ndarray | None = None
+        # with ``fallback_learned``: the same increments compounded with each fallback's
+        # model covariance instead of its learned one (the wheels decide both schedules,
+        # so they take together)
+        self._learned = config.fallback_learned
+        self._wide = UpdateSchedule(config.update_distance_m, config.update_angle_rad)
+        self._fallback_since_take = False
+        #: (3, 3) the covariance of the increment just taken with its fallbacks' model
+        #: covariance; None when it held no fallback or ``fallback_learned`` is off
+        self.wide_covariance: np.ndarray | None = None
 
     def next(self, frame: Frame, step: FrontendStep | None = None):
         """As :meth:`_OdometryMotion.next`; ``step`` is the front end's step on ``frame``
@@ -224,9 +238,18 @@ class _FrontendMotion:
             return True, None, None, None
         key = "frontend_fallbacks" if matched.fallback else "frontend_matched"
         covariance = matched.covariance if matched.fallback else matched.covariance * self._trust
+        if self._learned:
+            wide = self.odometry.odometry_covariance(matched.odometry_increment) if matched.fallback else covariance
+            self._wide.add(matched.increment, wide, matched.odometry_increment)
+            self._fallback_since_take |= bool(matched.fallback)
+        self.wide_covariance = None
         if not self.schedule.add(matched.increment, covariance, matched.odometry_increment):
             return False, None, None, key
         delta, cov = self.schedule.take()
+        if self._learned:
+            wide = self._wide.take()[1]
+            self.wide_covariance = wide if self._fallback_since_take else None
+            self._fallback_since_take = False
         return True, delta, cov, key
 
     def since_update(self):
@@ -406,6 +429,34 @@ class Mapper:
             self._initial_pose if self._initial_pose is not None else np.zeros(3))
         return start if increment is None else compose(start, _pose(increment, "odometry_increment"))
 
+    def _checked_by_walls(self, slam, frame: Frame, delta, covariance):
+        """The covariance (3, 3) to predict the increment ``delta`` (3,) with, and whether
+        it was widened.
+
+        An increment holding a fallback (``frontend.fallback_learned``) carries the wheels'
+        learned σ, and no scan checked it; the filter's walls are its first check. A trial
+        step on a copy of the local filter, predicting with the front end's wide model
+        covariance, lets the walls place the pose freely: where they put it beyond the 99 %
+        region of the prediction with the learned σ, the wheels erred more than their σ
+        says, and the step predicts with the wide covariance so that the walls can turn it
+        back. Held to the learned σ there, the campus's filter kept a heading 6° off, bent
+        its submap and let wrong loop closures in (docs/real_logs.md, "A fallback as wide
+        as the wheels err"). The innovations' χ² is no such test: the gates drop the beams a
+        wrong heading moved. Costs a copy of the local filter and a second step, on
+        fallbacks only."""
+        wide = self._motion.wide_covariance
+        if wide is None or delta is None:
+            return covariance, False
+        local = slam.local if isinstance(slam, SubmapSLAM) else slam
+        mean, predicted = compose_with_covariance(local.pose, local.pose_covariance, delta, covariance)
+        trial = copy.deepcopy(local)
+        trial.step(delta, frame.scan, frame.laser_offset, odometry_covariance=wide)
+        error = trial.pose - mean
+        error[2] = math.remainder(float(error[2]), 2.0 * math.pi)
+        if error @ np.linalg.solve(predicted, error) > chi2_quantile(0.99, 3):
+            return wide, True
+        return covariance, False
+
     def _step(self, frame: Frame, frontend_step: FrontendStep | None = None) -> _Record:
         """The front end, the update schedule and (on the scans it picks) the filter."""
         if self._slam is None:
@@ -417,7 +468,9 @@ class Mapper:
             self._first = slam.pose, slam.pose_covariance
         t0 = time.perf_counter()
         run_filter, delta, delta_cov, counter = self._motion.next(frame, frontend_step)
+        widened = False
         if run_filter:
+            delta_cov, widened = self._checked_by_walls(slam, frame, delta, delta_cov)
             report = slam.step(delta, frame.scan, frame.laser_offset, odometry_covariance=delta_cov)
             pose, cov = slam.pose, slam.pose_covariance
             replay = _Replayed(delta, delta_cov, frame.scan, frame.laser_offset, report.features)
@@ -431,6 +484,8 @@ class Mapper:
             counts["frontend_in_helper"] = 1
         if report is not None:
             _add_report(counts, report)
+            if widened:
+                counts["fallbacks_widened"] = 1
         submap = 0
         if isinstance(slam, SubmapSLAM):   # a step's scan may have ended its submap: it belongs to that one
             submap = slam.step_submap if run_filter else slam.submap_index
