@@ -501,17 +501,21 @@ class FrontendConfig:
             that σ instead of the model's, so that where the wheels are good a corridor's
             weak direction comes from them rather than from the scan's few features along
             it (:meth:`bsslam.frontend.LaserOdometry.odometry_scale`). 0: the model's σ.
-        fallback_learned: true: a fallback's covariance (the raw odometry increment where no
-            match could be trusted) is the model's with each σ (Δx, Δy, Δφ) scaled by the
-            RMS disagreement of the same matches with the odometry, once 20 are in: what
-            the wheels err by in a step (in heading 0.16–0.18 of the model's σ on the
-            logs with synthetic drift, 0.30 on Intel's wheels, 0.64 on CSAIL's; with
-            ``odometry_learned_window`` 0 nothing is learned and the model's is used).
-            false (default): the model's, wide enough for the worst wheels. Of the shared
-            logs only the campus falls back often (about 80 of its 2008 scans; CSAIL and
-            intel-noisy once in some runs): true takes its online covariance from cautious
-            (median NEES 0.3) to calibrated (1.9) and halves its time, but 3 runs of 40
-            end 0.75–5.5 m off (see :meth:`bsslam.frontend.LaserOdometry.fallback_covariance`).
+        fallback_learned: true (default): a fallback's covariance (the raw odometry
+            increment where no match could be trusted) is the model's with each σ (Δx,
+            Δy, Δφ) scaled by the RMS disagreement of the same matches with the odometry,
+            once 20 are in: what the wheels err by in a step (in heading 0.16–0.18 of the
+            model's σ on the logs with synthetic drift, 0.30 on Intel's wheels, 0.64 on
+            CSAIL's; with ``odometry_learned_window`` 0 nothing is learned and the model's
+            is used); and the filter step holding it is first tried with the model's σ: where
+            the walls then put the pose beyond the learned prediction's 99 % region, it
+            predicts with the model's (:meth:`bsslam.mapper.Mapper._checked_by_walls`).
+            false: the model's, wide enough for the worst wheels. Of the shared logs only
+            the campus falls back often (about 80 of its 2008 scans; CSAIL and intel-noisy
+            once in some runs): over forty perturbed runs its online covariance goes from
+            cautious (median NEES 0.3) to calibrated (1.6), its worst run from 0.473 to
+            0.382 m, and a run takes 2.6 × less time (docs/real_logs.md, "A fallback as
+            wide as the wheels err").
 
     Trust
         min_points: fewer valid points in the scan or in the reference → fall back.
@@ -586,7 +590,7 @@ class FrontendConfig:
     odometry_gate: float = 0.99
     odometry_gate_steps: int = 2
     odometry_learned_window: int = 200
-    fallback_learned: bool = False
+    fallback_learned: bool = True
 
     def __post_init__(self) -> None:
         positive = ("max_range_m", "scan_voxel_m", "submap_voxel_m", "search_window_m", "search_window_rad",

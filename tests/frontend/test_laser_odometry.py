@@ -342,7 +342,8 @@ def test_a_fallback_is_as_wide_as_the_wheels_err(noise):
     k = 140
     empty = LaserScan(0.0, frames[k].scan.angles, np.full(frames[k].scan.angles.shape, np.inf), 8.0)
     frames[k] = Frame(frames[k].stamp, frames[k].odometry, empty, frames[k].laser_offset)
-    cfg = FrontendConfig(fallback_learned=True)
+    cfg = FrontendConfig()
+    assert cfg.fallback_learned
     lo, out = _run(frames[:k], cfg)
     model = lo.odometry_covariance(between(frames[k - 1].odometry, frames[k].odometry))
     expected = lo.fallback_covariance(model)
@@ -357,8 +358,8 @@ def test_a_fallback_is_as_wide_as_the_wheels_err(noise):
     learned = math.sqrt(expected[2, 2] / model[2, 2])
     assert 0.7 < learned / oracle < 1.1, (learned, oracle)
     assert np.all(np.diag(expected) < np.diag(model))
-    # not learning (the default): the model's covariance
-    off, _ = _run(frames[:k], FrontendConfig())
+    # not learning: the model's covariance
+    off, _ = _run(frames[:k], FrontendConfig(fallback_learned=False))
     np.testing.assert_array_equal(off.fallback_covariance(model), model)
     early, _ = _run(frames[:15], cfg)
     np.testing.assert_array_equal(early.fallback_covariance(model), model)

@@ -280,10 +280,11 @@ class LaserOdometry:
         median says 0.45 of the model's heading σ, the RMS 0.64, and the 99th percentile of
         the error is 2.58 × 0.80 of it) and a fallback is a step the scan could not check.
         A direction the wheels never err in measurably (sideways, in simulation) sits at
-        the 0.1 bound. Off by default: on the campus it
-        leaves three runs of forty 0.75–5.5 m off, where a loop closure wrong by 3–10° in
-        heading, at submaps right after a fallback, was let in (docs/real_logs.md, "A
-        fallback as wide as the wheels err")."""
+        the 0.1 bound. Alone, it left three campus runs of forty 0.75–5.5 m off (a submap
+        bent after a fallback, then a loop closure wrong in heading let in); the mapper
+        therefore checks each such step against the walls
+        (:meth:`bsslam.mapper.Mapper._checked_by_walls`; docs/real_logs.md, "A fallback as
+        wide as the wheels err")."""
         cov = np.asarray(odometry_covariance, dtype=float)
         if not self.config.fallback_learned or len(self._odometry_misfit) < _LEARN_MIN_MATCHES:
             return cov
