@@ -34,7 +34,7 @@ from bsslam.chi2 import chi2_quantile
 from bsslam.config import SLAMConfig
 from bsslam.dataset import Frame, SkipCounter
 from bsslam.deskewed_dataset import deskewed, odometry_velocity
-from bsslam.errors import InputError
+from bsslam.errors import FilterError, InputError, MemoryBudgetError
 from bsslam.frontend import FrontendStep, LaserOdometry, UpdateSchedule
 from bsslam.input_limits import InputLimits, OdometryGate, angles_problem, invalid_ranges, offset_problem
 from bsslam.scan import LaserScan
@@ -248,7 +248,8 @@ class _FrontendMotion:
         delta, cov = self.schedule.take()
         if self._learned:
             wide = self._wide.take()[1]
-            self.wide_covariance = wide if self._fallback_since_take else None
+            # before 20 matches the learned covariance is the model's: nothing to check
+            self.wide_covariance = wide if self._fallback_since_take and not np.array_equal(wide, cov) else None
             self._fallback_since_take = False
         return True, delta, cov, key
 
@@ -443,14 +444,17 @@ class Mapper:
         its submap and let wrong loop closures in (docs/real_logs.md, "A fallback as wide
         as the wheels err"). The innovations' χ² is no such test: the gates drop the beams a
         wrong heading moved. Costs a copy of the local filter and a second step, on
-        fallbacks only."""
+        fallbacks only (the copy's memory briefly on top of the budget)."""
         wide = self._motion.wide_covariance
         if wide is None or delta is None:
             return covariance, False
         local = slam.local if isinstance(slam, SubmapSLAM) else slam
         mean, predicted = compose_with_covariance(local.pose, local.pose_covariance, delta, covariance)
         trial = copy.deepcopy(local)
-        trial.step(delta, frame.scan, frame.laser_offset, odometry_covariance=wide)
+        try:
+            trial.step(delta, frame.scan, frame.laser_offset, odometry_covariance=wide)
+        except (FilterError, MemoryBudgetError):   # the trial must not end a run the real step may finish
+            return covariance, False
         error = trial.pose - mean
         error[2] = math.remainder(float(error[2]), 2.0 * math.pi)
         if error @ np.linalg.solve(predicted, error) > chi2_quantile(0.99, 3):
