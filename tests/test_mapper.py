@@ -16,6 +16,7 @@ from bsslam.errors import InputError
 from bsslam.io import open_dataset
 from bsslam.io.trajectory_file import write_tum
 from bsslam.pipeline import run_dataset
+from bsslam.scan.laser_scan import LaserScan
 from bsslam.se2 import between
 from bsslam.sim import SimConfig, get_world, simulate
 
@@ -332,3 +333,27 @@ def test_a_fallback_the_walls_contradict_is_predicted_with_the_wide_covariance(d
     np.testing.assert_array_equal(slam.pose, before[0])
     np.testing.assert_array_equal(slam.pose_covariance, before[1])
     assert slam.state_size == before[2]
+
+
+def test_the_wide_covariance_is_compounded_only_over_an_increment_holding_a_fallback(data, config):
+    """The second schedule: a filter step whose increment holds a fallback (an empty scan,
+    after the 20 matches that teach the wheels' σ) gets a wide covariance whose heading
+    variance exceeds the learned one's; the steps without a fallback get none."""
+    frames = list(data)
+    k = 28
+    empty = LaserScan(frames[k].scan.stamp, frames[k].scan.angles, np.full(frames[k].scan.angles.shape, np.inf),
+                      frames[k].scan.max_range)
+    frames[k] = dataclasses.replace(frames[k], scan=empty)
+    mapper = Mapper(config)
+    held = []
+    for i, f in enumerate(frames):
+        mapper.add(f.scan, f.odometry, f.stamp, f.laser_offset)
+        held.append(mapper._motion.wide_covariance)
+    assert mapper._motion.odometry.stats.fallbacks == 1
+    steps = [i for i, w in enumerate(held) if w is not None]
+    assert len(steps) == 1 and steps[0] >= k      # the filter step that took the fallback's increment
+    wide = held[steps[0]]
+    assert np.all(np.linalg.eigvalsh(wide) > 0)
+    # headings add up: the compounded heading variance holds the fallback's model variance
+    model = mapper._motion.odometry.odometry_covariance(between(frames[k - 1].odometry, frames[k].odometry))
+    assert wide[2, 2] >= model[2, 2]
