@@ -322,12 +322,12 @@ def test_a_fallback_the_walls_contradict_is_predicted_with_the_wide_covariance(d
     before = (slam.pose.copy(), slam.pose_covariance.copy(), slam.state_size)
 
     mapper._motion.wide_covariance = None
-    cov, widened = mapper._checked_by_walls(slam, frame, wrong_delta, learned)
+    cov, widened, _ = mapper._checked_by_walls(slam, frame, wrong_delta, learned)
     assert cov is learned and not widened
     mapper._motion.wide_covariance = wide
-    cov, widened = mapper._checked_by_walls(slam, frame, true_delta, learned)
+    cov, widened, _ = mapper._checked_by_walls(slam, frame, true_delta, learned)
     assert cov is learned and not widened
-    cov, widened = mapper._checked_by_walls(slam, frame, wrong_delta, learned)
+    cov, widened, _ = mapper._checked_by_walls(slam, frame, wrong_delta, learned)
     assert cov is wide and widened
 
     np.testing.assert_array_equal(slam.pose, before[0])

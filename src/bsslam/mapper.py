@@ -38,7 +38,7 @@ from bsslam.errors import FilterError, InputError, MemoryBudgetError
 from bsslam.frontend import FrontendStep, LaserOdometry, UpdateSchedule
 from bsslam.input_limits import InputLimits, OdometryGate, angles_problem, invalid_ranges, offset_problem
 from bsslam.scan import LaserScan
-from bsslam.se2 import between, compose, compose_with_covariance
+from bsslam.se2 import between, compose, compose_with_covariance, squared_mahalanobis
 from bsslam.slam import MapSpline, SplineSLAM
 from bsslam.spline import BSplineCurve
 from bsslam.submaps.backend import SubmapSLAM
@@ -431,8 +431,9 @@ class Mapper:
         return start if increment is None else compose(start, _pose(increment, "odometry_increment"))
 
     def _checked_by_walls(self, slam, frame: Frame, delta, covariance):
-        """The covariance (3, 3) to predict the increment ``delta`` (3,) with, and whether
-        it was widened.
+        """The covariance (3, 3) to predict the increment ``delta`` (3,) with, whether it was
+        widened, and the scan's splines if a trial step fitted them (else None), for the
+        real step to reuse.
 
         An increment holding a fallback (``frontend.fallback_learned``) carries the wheels'
         learned σ, and no scan checked it; the filter's walls are its first check. A trial
@@ -447,19 +448,17 @@ class Mapper:
         fallbacks only (the copy's memory briefly on top of the budget)."""
         wide = self._motion.wide_covariance
         if wide is None or delta is None:
-            return covariance, False
+            return covariance, False, None
         local = slam.local if isinstance(slam, SubmapSLAM) else slam
         mean, predicted = compose_with_covariance(local.pose, local.pose_covariance, delta, covariance)
         trial = copy.deepcopy(local)
         try:
-            trial.step(delta, frame.scan, frame.laser_offset, odometry_covariance=wide)
+            report = trial.step(delta, frame.scan, frame.laser_offset, odometry_covariance=wide)
         except (FilterError, MemoryBudgetError):   # the trial must not end a run the real step may finish
-            return covariance, False
-        error = trial.pose - mean
-        error[2] = math.remainder(float(error[2]), 2.0 * math.pi)
-        if error @ np.linalg.solve(predicted, error) > chi2_quantile(0.99, 3):
-            return wide, True
-        return covariance, False
+            return covariance, False, None
+        if squared_mahalanobis(trial.pose, mean, predicted) > chi2_quantile(0.99, 3):
+            return wide, True, report.features
+        return covariance, False, report.features
 
     def _step(self, frame: Frame, frontend_step: FrontendStep | None = None) -> _Record:
         """The front end, the update schedule and (on the scans it picks) the filter."""
@@ -474,8 +473,9 @@ class Mapper:
         run_filter, delta, delta_cov, counter = self._motion.next(frame, frontend_step)
         widened = False
         if run_filter:
-            delta_cov, widened = self._checked_by_walls(slam, frame, delta, delta_cov)
-            report = slam.step(delta, frame.scan, frame.laser_offset, odometry_covariance=delta_cov)
+            delta_cov, widened, features = self._checked_by_walls(slam, frame, delta, delta_cov)
+            report = slam.step(delta, frame.scan, frame.laser_offset, odometry_covariance=delta_cov,
+                               features=features)
             pose, cov = slam.pose, slam.pose_covariance
             replay = _Replayed(delta, delta_cov, frame.scan, frame.laser_offset, report.features)
         else:
