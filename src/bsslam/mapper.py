@@ -225,7 +225,8 @@ class _FrontendMotion:
         self._wide = UpdateSchedule(config.update_distance_m, config.update_angle_rad)
         self._fallback_since_take = False
         #: (3, 3) the covariance of the increment just taken with its fallbacks' model
-        #: covariance; None when it held no fallback or ``fallback_learned`` is off
+        #: covariance; None when it held no fallback (nor the match after one) or
+        #: ``fallback_learned`` is off
         self.wide_covariance: np.ndarray | None = None
 
     def next(self, frame: Frame, step: FrontendStep | None = None):
@@ -238,10 +239,12 @@ class _FrontendMotion:
             return True, None, None, None
         key = "frontend_fallbacks" if matched.fallback else "frontend_matched"
         covariance = matched.covariance if matched.fallback else matched.covariance * self._trust
+        wide = self.odometry.odometry_covariance(matched.odometry_increment) if matched.fallback else covariance
+        if matched.carried is not None:   # the match after fallbacks takes their error back
+            covariance, wide = covariance + matched.carried, wide + matched.carried_wide
         if self._learned:
-            wide = self.odometry.odometry_covariance(matched.odometry_increment) if matched.fallback else covariance
             self._wide.add(matched.increment, wide, matched.odometry_increment)
-            self._fallback_since_take |= bool(matched.fallback)
+            self._fallback_since_take |= bool(matched.fallback) or matched.carried is not None
         self.wide_covariance = None
         if not self.schedule.add(matched.increment, covariance, matched.odometry_increment):
             return False, None, None, key

@@ -365,6 +365,49 @@ def test_a_fallback_is_as_wide_as_the_wheels_err(noise):
     np.testing.assert_array_equal(early.fallback_covariance(model), model)
 
 
+def test_the_match_after_fallbacks_carries_their_error():
+    """Two fallbacks in a row (empty scans), then a trusted match against the keyframes from
+    before them: the match's increment starts from the fallbacks' pose, so it holds their
+    error with the opposite sign. Its ``carried`` covariance is J₁Σ₁J₁ᵀ + J₂Σ₂J₂ᵀ, the
+    Jacobians of the increment in each fallback's robot-frame error by central
+    differences (the oracle) and Σ the fallbacks' covariances; ``carried_wide`` the same
+    with the odometry model's. Trusted matches otherwise carry nothing."""
+    data = simulate(get_world("mixed"), SimConfig(), seed=4, steps=40)
+    frames = list(data)
+    k = 30
+    for j in (k, k + 1):
+        empty = LaserScan(0.0, frames[j].scan.angles, np.full(frames[j].scan.angles.shape, np.inf), 8.0)
+        frames[j] = Frame(frames[j].stamp, frames[j].odometry, empty, frames[j].laser_offset)
+    lo, out = _run(frames[:k + 3])
+    first, second, match = out[k], out[k + 1], out[k + 2]
+    assert first.fallback and second.fallback and not match.fallback
+    assert first.carried is None and second.carried is None
+    assert all(s.carried is None for s in out[1:k])
+    start = out[k - 1].pose
+
+    def increment(e1, e2):
+        pose = compose(compose(start, first.increment + e1), second.increment + e2)
+        return between(pose, match.match.pose)
+
+    def jacobian(which):
+        J = np.zeros((3, 3))
+        for i in range(3):
+            h = np.zeros(3)
+            h[i] = 1e-6
+            args = [(h, np.zeros(3)), (-h, np.zeros(3))] if which == 0 else [(np.zeros(3), h), (np.zeros(3), -h)]
+            J[:, i] = (increment(*args[0]) - increment(*args[1])) / 2e-6
+        return J
+    J1, J2 = jacobian(0), jacobian(1)
+    np.testing.assert_allclose(match.carried, J1 @ first.covariance @ J1.T + J2 @ second.covariance @ J2.T,
+                               rtol=1e-6, atol=1e-12)
+    models = [lo.odometry_covariance(s.odometry_increment) for s in (first, second)]
+    np.testing.assert_allclose(match.carried_wide, J1 @ models[0] @ J1.T + J2 @ models[1] @ J2.T,
+                               rtol=1e-6, atol=1e-12)
+    assert match.carried_wide[2, 2] > match.carried[2, 2] > 0     # learned from 29 matches: narrower
+    np.testing.assert_allclose(match.increment, increment(np.zeros(3), np.zeros(3)), atol=1e-12)
+    assert lo.step(frames[k + 3]).carried is None
+
+
 def test_the_learned_sigma_waits_for_enough_matches():
     data = simulate(get_world("mixed"), SimConfig(), seed=0, steps=15)
     lo, _ = _run(list(data))

@@ -43,7 +43,7 @@ from bsslam.errors import InputError
 from bsslam.input_limits import InputLimits, offset_problem, pose_problem
 from bsslam.frontend.scan_matcher import (MatchResult, ReferenceMap, _wrap, estimate_normals, scan_disagreement,
                                           scan_points, voxel_thin, weak_prior_share)
-from bsslam.se2 import compose_with_covariance, squared_mahalanobis
+from bsslam.se2 import compose_with_covariance, inverse_with_covariance, squared_mahalanobis
 
 
 # Limits of the poses the front end accepts (the defaults of the readers').
@@ -97,6 +97,14 @@ class FrontendStep:
         match: the scan match, None when none was attempted (first frame, empty submap).
         fallback: True when ``increment`` is the raw odometry increment.
         keyframe: True when the scan was added to the submap.
+        carried: (3, 3) on the first trusted match after fallbacks: what the fallbacks'
+            error adds to the covariance of ``increment`` (not in ``covariance``). The match
+            places the scan against keyframes mapped before the fallbacks, so its increment
+            from the fallback's pose takes the fallbacks' error back; a filter that already
+            took it out (walls in sight) must not be told it twice with a match's σ. None
+            otherwise.
+        carried_wide: (3, 3) the same with each fallback's odometry model covariance (when
+            ``fallback_learned`` makes ``carried`` smaller); None with ``carried``.
     """
 
     increment: np.ndarray | None
@@ -106,6 +114,8 @@ class FrontendStep:
     match: MatchResult | None
     fallback: bool
     keyframe: bool
+    carried: np.ndarray | None = None
+    carried_wide: np.ndarray | None = None
 
 
 @dataclass
@@ -132,6 +142,13 @@ class FrontendStats:
     degenerate: int = 0
     keyframes: int = 0
     gated_over_steps: int = 0
+
+
+def _increment_covariance(start: np.ndarray, end: np.ndarray, start_covariance: np.ndarray) -> np.ndarray:
+    """(3, 3) the first-order covariance of the increment from ``start`` to ``end`` (each
+    (3,), front-end frame) that an error of ``start`` with covariance (3, 3) makes."""
+    inverse, inverse_covariance = inverse_with_covariance(start, start_covariance)
+    return compose_with_covariance(inverse, inverse_covariance, end, np.zeros((3, 3)))[1]
 
 
 @dataclass(frozen=True)
@@ -167,6 +184,9 @@ class LaserOdometry:
         # the last well-constrained trusted matches' squared disagreement with the odometry,
         # forward, sideways and in heading, each in σ² of the odometry model; newest last
         self._odometry_misfit: deque[tuple[float, float, float]] = deque(maxlen=config.odometry_learned_window)
+        # since the last trusted match, the fallbacks' error in :attr:`pose` (front-end
+        # frame), as covariances (3, 3): with their covariance, and with the model's
+        self._carried: tuple[np.ndarray, np.ndarray] | None = None
 
     def odometry_covariance(self, increment: np.ndarray) -> np.ndarray:
         """(3, 3) diagonal covariance of a raw odometry increment under the config's model."""
@@ -224,10 +244,14 @@ class LaserOdometry:
                     self.stats.gated_over_steps += 1
                 else:
                     match = dataclasses.replace(match, ok=False, reason="inconsistent_with_odometry")
+        carried = carried_wide = None
         if match is not None and match.ok:
             self.stats.matched += 1
             self.stats.degenerate += int(match.degenerate)
             fallback = False
+            if self._carried is not None:
+                carried, carried_wide = (_increment_covariance(prev, match.pose, c) for c in self._carried)
+                self._carried = None
             self._recent.append((increment, covariance, odo_inc))   # maxlen 0 keeps none
             if self._learns_from(match):
                 self._learn_odometry(match, guess, prior_cov, odo_cov, rot)
@@ -237,11 +261,15 @@ class LaserOdometry:
             reason = "too_few_reference_points" if match is None else match.reason
             self.stats.fallbacks += 1
             self.stats.reasons[reason] = self.stats.reasons.get(reason, 0) + 1
+            before = self._carried or (np.zeros((3, 3)), np.zeros((3, 3)))
+            self._carried = (compose_with_covariance(prev, before[0], increment, covariance)[1],
+                             compose_with_covariance(prev, before[1], increment, odo_cov)[1])
         self.pose = np.array(_compose(prev3, increment.tolist()))
         keyframe = self._is_keyframe(self.pose)
         if keyframe:
             self._add_keyframe(self.pose, points)
-        return FrontendStep(increment, covariance, self.pose.copy(), odo_inc, match, fallback, keyframe)
+        return FrontendStep(increment, covariance, self.pose.copy(), odo_inc, match, fallback, keyframe,
+                            carried, carried_wide)
 
     def odometry_scale(self) -> np.ndarray | None:
         """(3,) factors on the odometry model's σ of the robot-frame Δx (forward), Δy and
