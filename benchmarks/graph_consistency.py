@@ -118,8 +118,11 @@ def report(log: Path, seed: int | None, reference_sigma: tuple[float, float]) ->
         return nees(error, covariance + ref_cov)
 
     seam_alone, seam_drift = [], []
+    # the last submap froze at the end of the run: no scan starts from its end pose (its
+    # "successor's base" would be the last scan, not the filter step it ended at)
+    last = len(frozen) - 1 if np.asarray(result.step_submaps).max() == len(frozen) - 1 else len(frozen)
     for f in frozen:
-        if f.index + 1 >= len(index) or f.index >= len(seams):
+        if f.index >= last or f.index >= len(seams):
             continue
         a = against_reference(f.index, f.index + 1, f.end_pose, seams[f.index])
         b = against_reference(f.index, f.index + 1, f.end_pose, f.end_covariance)
