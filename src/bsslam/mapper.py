@@ -225,9 +225,11 @@ class _FrontendMotion:
         self._wide = UpdateSchedule(config.update_distance_m, config.update_angle_rad)
         self._fallback_since_take = False
         #: (3, 3) the covariance of the increment just taken with its fallbacks' model
-        #: covariance; None when it held no fallback (nor the match after one) or
-        #: ``fallback_learned`` is off
+        #: covariance; None when it held no fallback or ``fallback_learned`` is off
         self.wide_covariance: np.ndarray | None = None
+        #: whether the filter step that took the last fallbacks predicted them with their
+        #: wide covariance (set by the mapper's walls' check)
+        self.widened = False
 
     def next(self, frame: Frame, step: FrontendStep | None = None):
         """As :meth:`_OdometryMotion.next`; ``step`` is the front end's step on ``frame``
@@ -241,10 +243,14 @@ class _FrontendMotion:
         covariance = matched.covariance if matched.fallback else matched.covariance * self._trust
         wide = self.odometry.odometry_covariance(matched.odometry_increment) if matched.fallback else covariance
         if matched.carried is not None:   # the match after fallbacks takes their error back
-            covariance, wide = covariance + matched.carried, wide + matched.carried_wide
+            if self._fallback_since_take:   # … in the increment that holds them: the walls decide for both
+                covariance, wide = covariance + matched.carried, wide + matched.carried_wide
+            else:   # … as wide as the filter step that took them predicted them
+                carried = matched.carried_wide if self.widened else matched.carried
+                covariance, wide = covariance + carried, wide + carried
         if self._learned:
             self._wide.add(matched.increment, wide, matched.odometry_increment)
-            self._fallback_since_take |= bool(matched.fallback) or matched.carried is not None
+            self._fallback_since_take |= bool(matched.fallback)
         self.wide_covariance = None
         if not self.schedule.add(matched.increment, covariance, matched.odometry_increment):
             return False, None, None, key
@@ -477,6 +483,8 @@ class Mapper:
         widened = False
         if run_filter:
             delta_cov, widened, features = self._checked_by_walls(slam, frame, delta, delta_cov)
+            if isinstance(self._motion, _FrontendMotion) and self._motion.wide_covariance is not None:
+                self._motion.widened = widened
             report = slam.step(delta, frame.scan, frame.laser_offset, odometry_covariance=delta_cov,
                                features=features)
             pose, cov = slam.pose, slam.pose_covariance
