@@ -227,8 +227,8 @@ class _FrontendMotion:
         #: (3, 3) the covariance of the increment just taken with its fallbacks' model
         #: covariance; None when it held no fallback or ``fallback_learned`` is off
         self.wide_covariance: np.ndarray | None = None
-        #: whether the filter step that took the last fallbacks predicted them with their
-        #: wide covariance (set by the mapper's walls' check)
+        #: whether the filter step that took the last fallbacks predicted them with the
+        #: odometry model's covariance (the mapper's walls' check sets it where it decides)
         self.widened = False
 
     def next(self, frame: Frame, step: FrontendStep | None = None):
@@ -242,15 +242,18 @@ class _FrontendMotion:
         key = "frontend_fallbacks" if matched.fallback else "frontend_matched"
         covariance = matched.covariance if matched.fallback else matched.covariance * self._trust
         wide = self.odometry.odometry_covariance(matched.odometry_increment) if matched.fallback else covariance
-        if matched.carried is not None:   # the match after fallbacks takes their error back
-            if self._fallback_since_take:   # … in the increment that holds them: the walls decide for both
-                covariance, wide = covariance + matched.carried, wide + matched.carried_wide
-            else:   # … as wide as the filter step that took them predicted them
-                carried = matched.carried_wide if self.widened else matched.carried
-                covariance, wide = covariance + carried, wide + carried
+        if matched.carried is not None and not self._fallback_since_take and self.widened:
+            # The match after fallbacks takes their error back. The filter step that took
+            # them predicted them with the model's covariance, so its walls took that error
+            # out already: the increment carries it, as wide. (Where the step kept the
+            # learned σ, the walls agreed with the wheels and the filter kept their error for
+            # the match to take back; where the fallbacks are in the same increment, their
+            # errors cancel in it.) Carrying the learned σ after every fallback too cost the
+            # campus two runs of seventy (docs/real_logs.md, "The match after a fallback").
+            covariance, wide = covariance + matched.carried, wide + matched.carried
+        self._fallback_since_take |= bool(matched.fallback)
         if self._learned:
             self._wide.add(matched.increment, wide, matched.odometry_increment)
-            self._fallback_since_take |= bool(matched.fallback)
         self.wide_covariance = None
         if not self.schedule.add(matched.increment, covariance, matched.odometry_increment):
             return False, None, None, key
@@ -259,7 +262,10 @@ class _FrontendMotion:
             wide = self._wide.take()[1]
             # before 20 matches the learned covariance is the model's: nothing to check
             self.wide_covariance = wide if self._fallback_since_take and not np.array_equal(wide, cov) else None
-            self._fallback_since_take = False
+        if self._fallback_since_take:
+            # the model's covariance, unless the walls' check may keep the learned one (it sets this)
+            self.widened = self.wide_covariance is None
+        self._fallback_since_take = False
         return True, delta, cov, key
 
     def since_update(self):

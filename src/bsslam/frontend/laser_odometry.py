@@ -98,13 +98,13 @@ class FrontendStep:
         fallback: True when ``increment`` is the raw odometry increment.
         keyframe: True when the scan was added to the submap.
         carried: (3, 3) on the first trusted match after fallbacks: what the fallbacks'
-            error adds to the covariance of ``increment`` (not in ``covariance``). The match
-            places the scan against keyframes mapped before the fallbacks, so its increment
-            from the fallback's pose takes the fallbacks' error back; a filter that already
-            took it out (walls in sight) must not be told it twice with a match's σ. None
+            error, under the odometry model's covariance, adds to the covariance of
+            ``increment`` (not in ``covariance``). The match places the scan against
+            keyframes mapped before the fallbacks, so its increment from the fallbacks' pose
+            takes their error back; a filter that predicted the fallbacks with the model's
+            covariance let its walls take that error out already, and must not be told it
+            twice with a match's σ (:class:`bsslam.mapper.Mapper` adds it then). None
             otherwise.
-        carried_wide: (3, 3) the same with each fallback's odometry model covariance (when
-            ``fallback_learned`` makes ``carried`` smaller); None with ``carried``.
     """
 
     increment: np.ndarray | None
@@ -115,7 +115,6 @@ class FrontendStep:
     fallback: bool
     keyframe: bool
     carried: np.ndarray | None = None
-    carried_wide: np.ndarray | None = None
 
 
 @dataclass
@@ -184,9 +183,9 @@ class LaserOdometry:
         # the last well-constrained trusted matches' squared disagreement with the odometry,
         # forward, sideways and in heading, each in σ² of the odometry model; newest last
         self._odometry_misfit: deque[tuple[float, float, float]] = deque(maxlen=config.odometry_learned_window)
-        # since the last trusted match, the fallbacks' error in :attr:`pose` (front-end
-        # frame), as covariances (3, 3): with their covariance, and with the model's
-        self._carried: tuple[np.ndarray, np.ndarray] | None = None
+        # since the last trusted match, the covariance (3, 3) of the fallbacks' error in
+        # :attr:`pose` (front-end frame) under the odometry model's covariance
+        self._carried: np.ndarray | None = None
 
     def odometry_covariance(self, increment: np.ndarray) -> np.ndarray:
         """(3, 3) diagonal covariance of a raw odometry increment under the config's model."""
@@ -244,14 +243,13 @@ class LaserOdometry:
                     self.stats.gated_over_steps += 1
                 else:
                     match = dataclasses.replace(match, ok=False, reason="inconsistent_with_odometry")
-        carried = carried_wide = None
+        carried = None
         if match is not None and match.ok:
             self.stats.matched += 1
             self.stats.degenerate += int(match.degenerate)
             fallback = False
             if self._carried is not None:
-                carried, carried_wide = (_increment_covariance(prev, match.pose, c) for c in self._carried)
-                self._carried = None
+                carried, self._carried = _increment_covariance(prev, match.pose, self._carried), None
             self._recent.append((increment, covariance, odo_inc))   # maxlen 0 keeps none
             if self._learns_from(match):
                 self._learn_odometry(match, guess, prior_cov, odo_cov, rot)
@@ -261,15 +259,13 @@ class LaserOdometry:
             reason = "too_few_reference_points" if match is None else match.reason
             self.stats.fallbacks += 1
             self.stats.reasons[reason] = self.stats.reasons.get(reason, 0) + 1
-            before = self._carried or (np.zeros((3, 3)), np.zeros((3, 3)))
-            self._carried = (compose_with_covariance(prev, before[0], increment, covariance)[1],
-                             compose_with_covariance(prev, before[1], increment, odo_cov)[1])
+            before = np.zeros((3, 3)) if self._carried is None else self._carried
+            self._carried = compose_with_covariance(prev, before, increment, odo_cov)[1]
         self.pose = np.array(_compose(prev3, increment.tolist()))
         keyframe = self._is_keyframe(self.pose)
         if keyframe:
             self._add_keyframe(self.pose, points)
-        return FrontendStep(increment, covariance, self.pose.copy(), odo_inc, match, fallback, keyframe,
-                            carried, carried_wide)
+        return FrontendStep(increment, covariance, self.pose.copy(), odo_inc, match, fallback, keyframe, carried)
 
     def odometry_scale(self) -> np.ndarray | None:
         """(3,) factors on the odometry model's σ of the robot-frame Δx (forward), Δy and
