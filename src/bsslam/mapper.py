@@ -225,11 +225,16 @@ class _FrontendMotion:
         self._wide = UpdateSchedule(config.update_distance_m, config.update_angle_rad)
         self._fallback_since_take = False
         #: (3, 3) the covariance of the increment just taken with its fallbacks' model
-        #: covariance; None when it held no fallback or ``fallback_learned`` is off
+        #: covariance; None when it held no fallback, when that equals the learned one
+        #: (before 20 matches) or when ``fallback_learned`` is off
         self.wide_covariance: np.ndarray | None = None
-        #: whether the filter step that took the last fallbacks predicted them with the
-        #: odometry model's covariance (the mapper's walls' check sets it where it decides)
+        #: whether the filter step just taken, which held fallbacks, predicted them with
+        #: the odometry model's covariance (the mapper's walls' check sets it where it decides)
         self.widened = False
+        self._fold_widened = False    # ``widened`` still to be folded into the episode's flag
+        # whether a filter step that took some of the fallbacks since the last trusted match
+        # predicted them with the model's covariance
+        self._episode_wide = False
 
     def next(self, frame: Frame, step: FrontendStep | None = None):
         """As :meth:`_OdometryMotion.next`; ``step`` is the front end's step on ``frame``
@@ -242,15 +247,21 @@ class _FrontendMotion:
         key = "frontend_fallbacks" if matched.fallback else "frontend_matched"
         covariance = matched.covariance if matched.fallback else matched.covariance * self._trust
         wide = self.odometry.odometry_covariance(matched.odometry_increment) if matched.fallback else covariance
-        if matched.carried is not None and not self._fallback_since_take and self.widened:
-            # The match after fallbacks takes their error back. The filter step that took
-            # them predicted them with the model's covariance, so its walls took that error
-            # out already: the increment carries it, as wide. (Where the step kept the
-            # learned σ, the walls agreed with the wheels and the filter kept their error for
-            # the match to take back; where the fallbacks are in the same increment, their
-            # errors cancel in it.) Carrying the learned σ after every fallback too cost the
-            # campus two runs of seventy (docs/real_logs.md, "The match after a fallback").
+        if self._fold_widened:
+            self._episode_wide |= self.widened
+            self._fold_widened = False
+        if matched.carried is not None and self._episode_wide:
+            # The match after fallbacks takes their error back. A filter step that took them
+            # predicted them with the model's covariance, so its walls took that error out
+            # already: the increment carries it, as wide (all of it, an upper bound where
+            # some of them share this increment and cancel in it). Where every such step
+            # kept the learned σ, the walls agreed with the wheels and the filter kept their
+            # error for the match to take back; where all of them share this increment,
+            # their errors cancel in it. Carrying the learned σ after every fallback too cost
+            # the campus two runs of seventy (docs/real_logs.md, "The match after a fallback").
             covariance, wide = covariance + matched.carried, wide + matched.carried
+        if not matched.fallback:
+            self._episode_wide = False
         self._fallback_since_take |= bool(matched.fallback)
         if self._learned:
             self._wide.add(matched.increment, wide, matched.odometry_increment)
@@ -264,7 +275,7 @@ class _FrontendMotion:
             self.wide_covariance = wide if self._fallback_since_take and not np.array_equal(wide, cov) else None
         if self._fallback_since_take:
             # the model's covariance, unless the walls' check may keep the learned one (it sets this)
-            self.widened = self.wide_covariance is None
+            self.widened, self._fold_widened = self.wide_covariance is None, True
         self._fallback_since_take = False
         return True, delta, cov, key
 

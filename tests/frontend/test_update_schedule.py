@@ -96,3 +96,49 @@ def test_the_odometry_decides_when_the_filter_runs_not_the_match():
     assert turning.add(np.array([0.0, 0.0, 0.1]), np.zeros((3, 3)), np.array([0.0, 0.0, 0.6]))
     turning.take()
     assert not turning.add(np.array([0.0, 0.0, 0.6]), np.zeros((3, 3)), np.array([0.0, 0.0, 0.1]))
+
+
+def test_the_match_after_fallbacks_carries_their_error_where_a_step_predicted_them_wide():
+    """``_FrontendMotion`` adds a match's ``carried`` covariance to its increment exactly when
+    a filter step before it took some of the fallbacks with the model's covariance: widened
+    by the walls' check (the mapper sets ``widened``), or with nothing learned yet; not where
+    every such step kept the learned σ, nor where all the fallbacks share the match's
+    increment (their errors cancel in it). An episode that spans a filter step (F1 in one,
+    F2 and the match in the next) carries it when F1's step was wide."""
+    from bsslam.config import FrontendConfig
+    from bsslam.frontend.laser_odometry import FrontendStep
+    from bsslam.mapper import _FrontendMotion
+
+    inc, pose = np.array([0.6, 0.0, 0.0]), np.zeros(3)
+    carried = np.diag([0.01, 0.02, 0.03])
+
+    def step(fallback, carry=None):
+        return FrontendStep(inc, np.eye(3) * 1e-4, pose, inc, None, fallback, False, carry)
+
+    def episode(widened, every_step=True, learned=True):
+        """M, then F1 (its own filter step when ``every_step``), F2, then the match (the step
+        after F1's); the covariance the match's filter step gets, with and without carry."""
+        out = []
+        for carry in (carried, None):
+            config = FrontendConfig(update_distance_m=0.0 if every_step else 5.0, fallback_learned=learned)
+            motion = _FrontendMotion(config)
+            motion.next(None, FrontendStep(None, None, pose, None, None, False, True))
+            motion.next(None, step(False))
+            run = motion.next(None, step(True))[0]
+            if run and widened is not None:
+                motion.widened = widened          # as the mapper's walls' check decides
+            if every_step:                        # F2 and the match share the next step
+                motion.schedule.distance_m = 1.0
+            motion.next(None, step(True))
+            motion.schedule.distance_m = 0.0
+            out.append(motion.next(None, step(False, carry))[2])
+        return out
+
+    with_carry, without = episode(widened=True)
+    np.testing.assert_allclose(with_carry - without, carried, atol=1e-15)
+    with_carry, without = episode(widened=False)          # the walls kept the learned σ
+    np.testing.assert_array_equal(with_carry, without)
+    with_carry, without = episode(widened=None, every_step=False)   # all in the match's increment
+    np.testing.assert_array_equal(with_carry, without)
+    with_carry, without = episode(widened=None, learned=False)      # the model's covariance, nothing to check
+    np.testing.assert_allclose(with_carry - without, carried, atol=1e-15)

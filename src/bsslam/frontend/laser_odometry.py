@@ -99,12 +99,13 @@ class FrontendStep:
         keyframe: True when the scan was added to the submap.
         carried: (3, 3) on the first trusted match after fallbacks: what the fallbacks'
             error, under the odometry model's covariance, adds to the covariance of
-            ``increment`` (not in ``covariance``). The match places the scan against
-            keyframes mapped before the fallbacks, so its increment from the fallbacks' pose
+            ``increment`` (not in ``covariance``). Where the match places the scan against
+            keyframes mapped before the fallbacks, its increment from the fallbacks' pose
             takes their error back; a filter that predicted the fallbacks with the model's
             covariance let its walls take that error out already, and must not be told it
-            twice with a match's σ (:class:`bsslam.mapper.Mapper` adds it then). None
-            otherwise.
+            twice with a match's σ (:class:`bsslam.mapper.Mapper` adds it then). An upper
+            bound: a fallback's scan kept as a keyframe at the fallback's pose anchors the
+            match partly there, and then less is taken back. None otherwise.
     """
 
     increment: np.ndarray | None
