@@ -228,12 +228,9 @@ class _FrontendMotion:
         #: covariance; None when it held no fallback, when that equals the learned one
         #: (before 20 matches) or when ``fallback_learned`` is off
         self.wide_covariance: np.ndarray | None = None
-        #: whether the filter step just taken, which held fallbacks, predicted them with
-        #: the odometry model's covariance (the mapper's walls' check sets it where it decides)
-        self.widened = False
-        self._fold_widened = False    # ``widened`` still to be folded into the episode's flag
-        # whether a filter step that took some of the fallbacks since the last trusted match
-        # predicted them with the model's covariance
+        # the fallbacks since the last trusted match (an episode): are there any, and did a
+        # filter step that took some of them predict them with the model's covariance
+        self._episode_open = False
         self._episode_wide = False
 
     def next(self, frame: Frame, step: FrontendStep | None = None):
@@ -247,9 +244,6 @@ class _FrontendMotion:
         key = "frontend_fallbacks" if matched.fallback else "frontend_matched"
         covariance = matched.covariance if matched.fallback else matched.covariance * self._trust
         wide = self.odometry.odometry_covariance(matched.odometry_increment) if matched.fallback else covariance
-        if self._fold_widened:
-            self._episode_wide |= self.widened
-            self._fold_widened = False
         if matched.carried is not None and self._episode_wide:
             # The match after fallbacks takes their error back. A filter step that took them
             # predicted them with the model's covariance, so its walls took that error out
@@ -261,7 +255,8 @@ class _FrontendMotion:
             # the campus two runs of seventy (docs/real_logs.md, "The match after a fallback").
             covariance, wide = covariance + matched.carried, wide + matched.carried
         if not matched.fallback:
-            self._episode_wide = False
+            self._episode_open = self._episode_wide = False
+        self._episode_open |= bool(matched.fallback)
         self._fallback_since_take |= bool(matched.fallback)
         if self._learned:
             self._wide.add(matched.increment, wide, matched.odometry_increment)
@@ -273,11 +268,15 @@ class _FrontendMotion:
             wide = self._wide.take()[1]
             # before 20 matches the learned covariance is the model's: nothing to check
             self.wide_covariance = wide if self._fallback_since_take and not np.array_equal(wide, cov) else None
-        if self._fallback_since_take:
-            # the model's covariance, unless the walls' check may keep the learned one (it sets this)
-            self.widened, self._fold_widened = self.wide_covariance is None, True
+        if self._fallback_since_take and self.wide_covariance is None:
+            self._episode_wide |= self._episode_open   # the model's covariance, nothing to check
         self._fallback_since_take = False
         return True, delta, cov, key
+
+    def checked(self, widened: bool) -> None:
+        """The walls' check of the increment just taken (its :attr:`wide_covariance`)
+        predicted it with the model's covariance (``widened``) or the learned one."""
+        self._episode_wide |= widened and self._episode_open
 
     def since_update(self):
         """The increment (3,) and covariance (3, 3) compounded since the last filter step."""
@@ -500,8 +499,8 @@ class Mapper:
         widened = False
         if run_filter:
             delta_cov, widened, features = self._checked_by_walls(slam, frame, delta, delta_cov)
-            if isinstance(self._motion, _FrontendMotion) and self._motion.wide_covariance is not None:
-                self._motion.widened = widened
+            if self._motion.wide_covariance is not None:
+                self._motion.checked(widened)
             report = slam.step(delta, frame.scan, frame.laser_offset, odometry_covariance=delta_cov,
                                features=features)
             pose, cov = slam.pose, slam.pose_covariance

@@ -101,7 +101,7 @@ def test_the_odometry_decides_when_the_filter_runs_not_the_match():
 def test_the_match_after_fallbacks_carries_their_error_where_a_step_predicted_them_wide():
     """``_FrontendMotion`` adds a match's ``carried`` covariance to its increment exactly when
     a filter step before it took some of the fallbacks with the model's covariance: widened
-    by the walls' check (the mapper sets ``widened``), or with nothing learned yet; not where
+    by the walls' check (the mapper reports it), or with nothing learned yet; not where
     every such step kept the learned σ, nor where all the fallbacks share the match's
     increment (their errors cancel in it). An episode that spans a filter step (F1 in one,
     F2 and the match in the next) carries it when F1's step was wide."""
@@ -125,8 +125,8 @@ def test_the_match_after_fallbacks_carries_their_error_where_a_step_predicted_th
             motion.next(None, FrontendStep(None, None, pose, None, None, False, True))
             motion.next(None, step(False))
             run = motion.next(None, step(True))[0]
-            if run and widened is not None:
-                motion.widened = widened          # as the mapper's walls' check decides
+            if run and widened is not None and motion.wide_covariance is not None:
+                motion.checked(widened)           # as the mapper's walls' check decides
             if every_step:                        # F2 and the match share the next step
                 motion.schedule.distance_m = 1.0
             motion.next(None, step(True))
@@ -142,3 +142,20 @@ def test_the_match_after_fallbacks_carries_their_error_where_a_step_predicted_th
     np.testing.assert_array_equal(with_carry, without)
     with_carry, without = episode(widened=None, learned=False)      # the model's covariance, nothing to check
     np.testing.assert_allclose(with_carry - without, carried, atol=1e-15)
+
+    # The next episode starts afresh: F1 and the match share a widened step, then F2 takes a
+    # step the walls keep at the learned σ; the match after F2 carries nothing.
+    out = []
+    for carry in (carried, None):
+        motion = _FrontendMotion(FrontendConfig(update_distance_m=0.0))
+        motion.next(None, FrontendStep(None, None, pose, None, None, False, True))
+        motion.next(None, step(False))
+        motion.schedule.distance_m = 1.0
+        motion.next(None, step(True))
+        motion.schedule.distance_m = 0.0
+        motion.next(None, step(False, carried))           # F1 and its match: one step
+        motion.checked(True)
+        motion.next(None, step(True))                     # F2: its own step
+        motion.checked(False)
+        out.append(motion.next(None, step(False, carry))[2])
+    np.testing.assert_array_equal(*out)
