@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.stats import chi2
 
 from bsslam.config import MotionNoiseConfig
 from bsslam.dataset import Frame
@@ -152,7 +153,6 @@ def test_scalar_pose_helpers_equal_se2_bit_for_bit():
 def test_the_odometry_gate_is_the_chi2_region_of_both_covariances():
     """The decision is d (S_match + S_odo)⁻¹ dᵀ ≤ χ²₃ quantile (scipy as the oracle), with
     the heading difference wrapped; a gate of 1 takes every match."""
-    from scipy.stats import chi2
 
     rng = np.random.default_rng(5)
     lo = LaserOdometry(FrontendConfig())
@@ -264,7 +264,6 @@ def test_the_gate_over_steps_is_the_chi2_test_of_the_composed_increments():
     window adds no freedom of the earlier odometry steps) propagated by finite-difference
     Jacobians of that composition, the χ²₃ median from scipy (the window has to explain
     the disagreement, not merely pass the gate's 99 % region)."""
-    from scipy.stats import chi2
 
     rng = np.random.default_rng(11)
     lo = LaserOdometry(FrontendConfig(odometry_gate_steps=2))
@@ -403,6 +402,68 @@ def test_the_match_after_fallbacks_carries_their_error():
     assert models[0][2, 2] > first.covariance[2, 2]      # learned from 29 matches: narrower
     np.testing.assert_allclose(match.increment, increment(np.zeros(3), np.zeros(3)), atol=1e-12)
     assert lo.step(frames[k + 3]).carried is None
+
+
+def _wheels_turned_wrong_on_a_fallback(wrong_rad: float, k: int = 30):
+    """A simulated run whose scan ``k`` is empty (a fallback) and whose wheels turn
+    ``wrong_rad`` too far on that step only (the later increments are right)."""
+    data = simulate(get_world("mixed"), SimConfig(), seed=4, steps=40)
+    frames = list(data)
+    odometry = [np.asarray(f.odometry, dtype=float) for f in frames]
+    turned = compose(odometry[k - 1], between(odometry[k - 1], odometry[k]) + np.array([0.0, 0.0, wrong_rad]))
+    for j in range(k, len(frames)):
+        frames[j] = Frame(frames[j].stamp, compose(turned, between(odometry[k], odometry[j])), frames[j].scan,
+                          frames[j].laser_offset)
+    empty = LaserScan(0.0, frames[k].scan.angles, np.full(frames[k].scan.angles.shape, np.inf), 8.0)
+    frames[k] = Frame(frames[k].stamp, frames[k].odometry, empty, frames[k].laser_offset)
+    truth = [compose(odometry[0], between(data.ground_truth.poses[0], p)) for p in data.ground_truth.poses]
+    return frames, truth
+
+
+def test_the_match_after_a_fallback_is_gated_with_the_fallbacks_error():
+    """The match after a fallback (against the keyframes from before it) undoes the
+    fallback's error, which its own step's odometry does not hold. The gate is the χ²₃
+    99 % region (scipy) of the match's increment against that step's odometry with the
+    match's, the step's model and the fallback's covariance (as given to it, carried by
+    central-difference Jacobians: the oracle) added. Over wheel errors of 10–26° on the
+    fallback the front end trusts the match exactly where the oracle's distance is inside;
+    some of those are outside without the carried term; once trusted, the heading is back
+    within 0.5° of the truth."""
+    k = 30
+    threshold = chi2.ppf(0.99, 3)
+    outcomes, carried_mattered = [], False
+    for degrees in (10.0, 14.0, 17.0, 18.0, 22.0, 26.0):
+        frames, truth = _wheels_turned_wrong_on_a_fallback(math.radians(degrees), k)
+        lo, out = _run(frames[:k + 2])
+        fallback, step = out[k], out[k + 1]
+        assert fallback.fallback and step.match is not None and step.match.reason in ("ok", "inconsistent_with_odometry")
+        start = out[k - 1].pose
+
+        def increment(error):
+            return between(compose(start, fallback.increment + error), step.match.pose)
+
+        J = np.zeros((3, 3))
+        for i in range(3):
+            h = np.zeros(3)
+            h[i] = 1e-6
+            J[:, i] = (increment(h) - increment(-h)) / 2e-6
+        c, s_ = math.cos(fallback.pose[2]), math.sin(fallback.pose[2])
+        rot = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+        match_cov = rot.T @ step.match.covariance @ rot
+        odo_cov = lo.odometry_covariance(step.odometry_increment)
+        e = increment(np.zeros(3)) - step.odometry_increment
+        e[2] = (e[2] + math.pi) % (2 * math.pi) - math.pi
+        with_carry = e @ np.linalg.solve(match_cov + odo_cov + J @ fallback.covariance @ J.T, e)
+        alone = e @ np.linalg.solve(match_cov + odo_cov, e)
+        trusted = not step.fallback
+        assert trusted == (with_carry <= threshold), (degrees, with_carry)
+        outcomes.append(trusted)
+        if trusted:
+            carried_mattered |= alone > threshold
+            error = between(step.pose, truth[k + 1])
+            assert math.degrees(abs(error[2])) < 0.5
+    assert any(outcomes) and not all(outcomes)
+    assert carried_mattered
 
 
 def test_the_learned_sigma_waits_for_enough_matches():

@@ -11,7 +11,10 @@ at the first frame's odometry pose). For every frame after the first:
    matcher failed, or its increment disagrees with the odometry's beyond the
    ``odometry_gate`` probability region of both covariances, alone and summed with the
    matched increments just before it (``odometry_gate_steps``) — the raw increment is
-   returned with the odometry-model covariance (a *fallback*, counted),
+   returned with the wheels' covariance (:meth:`LaserOdometry.fallback_covariance`; a
+   *fallback*, counted). The first match after fallbacks is gated with their error
+   (under the covariance each fallback was given) added: it undoes that error, which
+   its own step's odometry does not hold,
 4. the scan becomes a keyframe when the robot is far enough from the last one; the
    submap is the union of the last ``submap_keyframes`` keyframes, thinned. Keyframes
    farther from the newest than ``2·max_range_m + search_window_m`` cannot overlap its
@@ -185,8 +188,11 @@ class LaserOdometry:
         # forward, sideways and in heading, each in σ² of the odometry model; newest last
         self._odometry_misfit: deque[tuple[float, float, float]] = deque(maxlen=config.odometry_learned_window)
         # since the last trusted match, the covariance (3, 3) of the fallbacks' error in
-        # :attr:`pose` (front-end frame) under the odometry model's covariance
+        # :attr:`pose` (front-end frame) under the odometry model's covariance (what a
+        # filter step that predicted them with it must take back), and under the
+        # covariance each was given (what the wheels err by, for the odometry gate)
         self._carried: np.ndarray | None = None
+        self._carried_given: np.ndarray | None = None
 
     def odometry_covariance(self, increment: np.ndarray) -> np.ndarray:
         """(3, 3) diagonal covariance of a raw odometry increment under the config's model."""
@@ -239,8 +245,14 @@ class LaserOdometry:
             increment = np.array(_between(prev3, match.pose.tolist()))
             covariance = rot.T @ match.covariance @ rot
             covariance = 0.5 * (covariance + covariance.T)
-            if not self._agrees_with_odometry(increment, covariance, odo_inc, odo_cov):
-                if self._agrees_over_steps(increment, covariance, odo_inc, odo_cov):
+            # After fallbacks the match (against keyframes from before them) also undoes
+            # their error, which the raw increment it is gated against does not hold: as
+            # much as the wheels err by (the model's σ let in matches 0.5–0.8 m off on the
+            # campus's open ground, where the wheels were 1–7 cm off)
+            gated = covariance if self._carried_given is None else \
+                covariance + _increment_covariance(prev, match.pose, self._carried_given)
+            if not self._agrees_with_odometry(increment, gated, odo_inc, odo_cov):
+                if self._agrees_over_steps(increment, gated, odo_inc, odo_cov):
                     self.stats.gated_over_steps += 1
                 else:
                     match = dataclasses.replace(match, ok=False, reason="inconsistent_with_odometry")
@@ -251,6 +263,7 @@ class LaserOdometry:
             fallback = False
             if self._carried is not None:
                 carried, self._carried = _increment_covariance(prev, match.pose, self._carried), None
+            self._carried_given = None
             self._recent.append((increment, covariance, odo_inc))   # maxlen 0 keeps none
             if self._learns_from(match):
                 self._learn_odometry(match, guess, prior_cov, odo_cov, rot)
@@ -262,6 +275,8 @@ class LaserOdometry:
             self.stats.reasons[reason] = self.stats.reasons.get(reason, 0) + 1
             before = np.zeros((3, 3)) if self._carried is None else self._carried
             self._carried = compose_with_covariance(prev, before, increment, odo_cov)[1]
+            before = np.zeros((3, 3)) if self._carried_given is None else self._carried_given
+            self._carried_given = compose_with_covariance(prev, before, increment, covariance)[1]
         self.pose = np.array(_compose(prev3, increment.tolist()))
         keyframe = self._is_keyframe(self.pose)
         if keyframe:
