@@ -528,8 +528,9 @@ class FrontendConfig:
             model's as the ratio goes up to twice this.
         odometry_gate: a match whose increment lies beyond this probability region of
             the odometry increment (χ²₃ with both covariances: the odometry model's and
-            the match's) is rejected → fall back, as the filter gates an observation
-            against its prediction; 1 turns the gate off.
+            the match's; after fallbacks also their error, which the match undoes) is
+            rejected → fall back, as the filter gates an observation against its
+            prediction; 1 turns the gate off.
         odometry_gate_steps: a match the gate rejects is still trusted when, composed
             after the trusted matches of up to this many − 1 steps before it, it agrees
             with the odometry composed over the same steps: an odometry skewed in time

@@ -404,64 +404,120 @@ def test_the_match_after_fallbacks_carries_their_error():
     assert lo.step(frames[k + 3]).carried is None
 
 
-def _wheels_turned_wrong_on_a_fallback(wrong_rad: float, k: int = 30):
-    """A simulated run whose scan ``k`` is empty (a fallback) and whose wheels turn
-    ``wrong_rad`` too far on that step only (the later increments are right)."""
+def _wheels_wrong_on_fallbacks(wrong: np.ndarray, k: int = 30, fallbacks: int = 1):
+    """A simulated run whose scans k … k + ``fallbacks`` − 1 are empty (fallbacks) and whose
+    wheels' increment of step k is off by ``wrong`` (3,: robot-frame x, y m, heading rad;
+    the later increments are right). Returns the frames and the true poses in the front
+    end's frame."""
     data = simulate(get_world("mixed"), SimConfig(), seed=4, steps=40)
     frames = list(data)
     odometry = [np.asarray(f.odometry, dtype=float) for f in frames]
-    turned = compose(odometry[k - 1], between(odometry[k - 1], odometry[k]) + np.array([0.0, 0.0, wrong_rad]))
+    turned = compose(odometry[k - 1], between(odometry[k - 1], odometry[k]) + np.asarray(wrong, dtype=float))
     for j in range(k, len(frames)):
         frames[j] = Frame(frames[j].stamp, compose(turned, between(odometry[k], odometry[j])), frames[j].scan,
                           frames[j].laser_offset)
-    empty = LaserScan(0.0, frames[k].scan.angles, np.full(frames[k].scan.angles.shape, np.inf), 8.0)
-    frames[k] = Frame(frames[k].stamp, frames[k].odometry, empty, frames[k].laser_offset)
+    for j in range(k, k + fallbacks):
+        empty = LaserScan(0.0, frames[j].scan.angles, np.full(frames[j].scan.angles.shape, np.inf), 8.0)
+        frames[j] = Frame(frames[j].stamp, frames[j].odometry, empty, frames[j].laser_offset)
     truth = [compose(odometry[0], between(data.ground_truth.poses[0], p)) for p in data.ground_truth.poses]
     return frames, truth
+
+
+def _carried_oracle(out, k: int, fallbacks: int, match_pose: np.ndarray) -> np.ndarray:
+    """(3, 3) the covariance of the increment from the last fallback's pose to
+    ``match_pose`` that the fallbacks' errors make, each under the covariance it was given:
+    ΣJᵢΣᵢJᵢᵀ, Jᵢ by central differences in fallback i's robot-frame increment."""
+    start = out[k - 1].pose
+    increments = [out[k + i].increment for i in range(fallbacks)]
+
+    def increment(i, error):
+        pose = start
+        for j, inc in enumerate(increments):
+            pose = compose(pose, inc + (error if j == i else 0.0))
+        return between(pose, match_pose)
+
+    total = np.zeros((3, 3))
+    for i in range(fallbacks):
+        J = np.zeros((3, 3))
+        for c in range(3):
+            h = np.zeros(3)
+            h[c] = 1e-6
+            J[:, c] = (increment(i, h) - increment(i, -h)) / 2e-6
+        total += J @ out[k + i].covariance @ J.T
+    return total
+
+
+def test_the_gate_carries_the_fallbacks_error_as_each_was_given(monkeypatch):
+    """Two fallbacks in a row, the wheels 0.1 m, −0.2 m and 8° off on the first: the
+    covariance the odometry gate judges the next match's increment with is the match's own
+    (in the increment's frame) plus the fallbacks' error under the covariance each was
+    given, carried into the increment (the central-difference oracle). The match after it
+    is gated with its own covariance alone: the carry went with the trusted match."""
+    k = 30
+    frames, _ = _wheels_wrong_on_fallbacks(np.array([0.1, -0.2, math.radians(8.0)]), k, fallbacks=2)
+    lo, out = _run(frames[:k + 2])
+    assert out[k].fallback and out[k + 1].fallback
+    gated = []
+    judge = LaserOdometry._agrees_with_odometry
+
+    def spy(self, increment, covariance, *args, **kwargs):
+        gated.append(np.array(covariance))
+        return judge(self, increment, covariance, *args, **kwargs)
+
+    monkeypatch.setattr(LaserOdometry, "_agrees_with_odometry", spy)
+    prev = out[k + 1].pose
+    step = lo.step(frames[k + 2])
+    assert not step.fallback and len(gated) == 1
+    c, s_ = math.cos(prev[2]), math.sin(prev[2])
+    rot = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+    own = rot.T @ step.match.covariance @ rot
+    carry = _carried_oracle(out, k, 2, step.match.pose)
+    assert carry[2, 2] > 0.1 * own[2, 2]           # the carry is not lost in the rounding
+    np.testing.assert_allclose(gated[0] - own, carry, rtol=1e-6, atol=1e-12)
+    after = lo.step(frames[k + 3])
+    assert not after.fallback and len(gated) == 2
+    c, s_ = math.cos(step.pose[2]), math.sin(step.pose[2])
+    rot = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+    np.testing.assert_allclose(gated[1], rot.T @ after.match.covariance @ rot, rtol=1e-9, atol=1e-15)
 
 
 def test_the_match_after_a_fallback_is_gated_with_the_fallbacks_error():
     """The match after a fallback (against the keyframes from before it) undoes the
     fallback's error, which its own step's odometry does not hold. The gate is the χ²₃
     99 % region (scipy) of the match's increment against that step's odometry with the
-    match's, the step's model and the fallback's covariance (as given to it, carried by
-    central-difference Jacobians: the oracle) added. Over wheel errors of 10–26° on the
-    fallback the front end trusts the match exactly where the oracle's distance is inside;
-    some of those are outside without the carried term; once trusted, the heading is back
-    within 0.5° of the truth."""
+    match's, the step's model and the carried covariance (the oracle above) added. Over
+    wheel errors of 10–26° on the fallback (with and without 0.15 m sideways) the front end
+    trusts the match exactly where the oracle's distance is inside; some of those lie
+    outside without the carried term (before, they were refused); once trusted, the
+    heading is back within 0.5° of the truth. An error well beyond what the wheels are
+    measured to err by (here 20° and more) stays refused: the gate cannot tell the match
+    from the wheels there."""
     k = 30
     threshold = chi2.ppf(0.99, 3)
     outcomes, carried_mattered = [], False
-    for degrees in (10.0, 14.0, 17.0, 18.0, 22.0, 26.0):
-        frames, truth = _wheels_turned_wrong_on_a_fallback(math.radians(degrees), k)
-        lo, out = _run(frames[:k + 2])
-        fallback, step = out[k], out[k + 1]
-        assert fallback.fallback and step.match is not None and step.match.reason in ("ok", "inconsistent_with_odometry")
-        start = out[k - 1].pose
-
-        def increment(error):
-            return between(compose(start, fallback.increment + error), step.match.pose)
-
-        J = np.zeros((3, 3))
-        for i in range(3):
-            h = np.zeros(3)
-            h[i] = 1e-6
-            J[:, i] = (increment(h) - increment(-h)) / 2e-6
-        c, s_ = math.cos(fallback.pose[2]), math.sin(fallback.pose[2])
-        rot = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
-        match_cov = rot.T @ step.match.covariance @ rot
-        odo_cov = lo.odometry_covariance(step.odometry_increment)
-        e = increment(np.zeros(3)) - step.odometry_increment
-        e[2] = (e[2] + math.pi) % (2 * math.pi) - math.pi
-        with_carry = e @ np.linalg.solve(match_cov + odo_cov + J @ fallback.covariance @ J.T, e)
-        alone = e @ np.linalg.solve(match_cov + odo_cov, e)
-        trusted = not step.fallback
-        assert trusted == (with_carry <= threshold), (degrees, with_carry)
-        outcomes.append(trusted)
-        if trusted:
-            carried_mattered |= alone > threshold
-            error = between(step.pose, truth[k + 1])
-            assert math.degrees(abs(error[2])) < 0.5
+    for sideways in (0.0, 0.15):
+        for degrees in (10.0, 14.0, 17.0, 18.0, 19.0, 20.0, 22.0, 26.0):
+            frames, truth = _wheels_wrong_on_fallbacks(np.array([0.0, sideways, math.radians(degrees)]), k)
+            lo, out = _run(frames[:k + 2])
+            fallback, step = out[k], out[k + 1]
+            assert fallback.fallback and step.match is not None
+            assert step.match.reason in ("ok", "inconsistent_with_odometry")
+            c, s_ = math.cos(fallback.pose[2]), math.sin(fallback.pose[2])   # the match step's prior pose
+            rot = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+            match_cov = rot.T @ step.match.covariance @ rot
+            odo_cov = lo.odometry_covariance(step.odometry_increment)
+            e = between(fallback.pose, step.match.pose) - step.odometry_increment
+            e[2] = (e[2] + math.pi) % (2 * math.pi) - math.pi
+            carry = _carried_oracle(out, k, 1, step.match.pose)
+            with_carry = e @ np.linalg.solve(match_cov + odo_cov + carry, e)
+            alone = e @ np.linalg.solve(match_cov + odo_cov, e)
+            trusted = not step.fallback
+            assert trusted == (with_carry <= threshold), (sideways, degrees, with_carry)
+            outcomes.append(trusted)
+            if trusted:
+                carried_mattered |= alone > threshold
+                error = between(step.pose, truth[k + 1])
+                assert math.degrees(abs(error[2])) < 0.5
     assert any(outcomes) and not all(outcomes)
     assert carried_mattered
 

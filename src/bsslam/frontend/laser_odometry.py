@@ -247,8 +247,11 @@ class LaserOdometry:
             covariance = 0.5 * (covariance + covariance.T)
             # After fallbacks the match (against keyframes from before them) also undoes
             # their error, which the raw increment it is gated against does not hold: as
-            # much as the wheels err by (the model's σ let in matches 0.5–0.8 m off on the
-            # campus's open ground, where the wheels were 1–7 cm off)
+            # much as the wheels err by (the model's σ let in matches 0.47–0.85 m off on
+            # the campus's open ground, where the wheels were 1–7 cm off). An upper bound,
+            # as `carried`: an episode longer than the window leaves no keyframe from
+            # before it, and the match then undoes none of it. The window test below sees
+            # no earlier steps after a fallback (they are cleared)
             gated = covariance if self._carried_given is None else \
                 covariance + _increment_covariance(prev, match.pose, self._carried_given)
             if not self._agrees_with_odometry(increment, gated, odo_inc, odo_cov):
