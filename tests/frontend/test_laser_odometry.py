@@ -371,36 +371,19 @@ def test_the_match_after_fallbacks_carries_their_error():
     Jacobians of the increment in each fallback's robot-frame error by central
     differences (the oracle) and Σ the odometry model's covariance of each fallback (wider
     than the learned one each was given). Trusted matches otherwise carry nothing."""
-    data = simulate(get_world("mixed"), SimConfig(), seed=4, steps=40)
-    frames = list(data)
     k = 30
-    for j in (k, k + 1):
-        empty = LaserScan(0.0, frames[j].scan.angles, np.full(frames[j].scan.angles.shape, np.inf), 8.0)
-        frames[j] = Frame(frames[j].stamp, frames[j].odometry, empty, frames[j].laser_offset)
+    frames, _ = _wheels_wrong_on_fallbacks(np.zeros(3), k, fallbacks=2)
     lo, out = _run(frames[:k + 3])
     first, second, match = out[k], out[k + 1], out[k + 2]
     assert first.fallback and second.fallback and not match.fallback
     assert first.carried is None and second.carried is None
     assert all(s.carried is None for s in out[1:k])
-    start = out[k - 1].pose
-
-    def increment(e1, e2):
-        pose = compose(compose(start, first.increment + e1), second.increment + e2)
-        return between(pose, match.match.pose)
-
-    def jacobian(which):
-        J = np.zeros((3, 3))
-        for i in range(3):
-            h = np.zeros(3)
-            h[i] = 1e-6
-            args = [(h, np.zeros(3)), (-h, np.zeros(3))] if which == 0 else [(np.zeros(3), h), (np.zeros(3), -h)]
-            J[:, i] = (increment(*args[0]) - increment(*args[1])) / 2e-6
-        return J
-    J1, J2 = jacobian(0), jacobian(1)
     models = [lo.odometry_covariance(s.odometry_increment) for s in (first, second)]
-    np.testing.assert_allclose(match.carried, J1 @ models[0] @ J1.T + J2 @ models[1] @ J2.T, rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(match.carried, _carried_oracle(out, k, 2, match.match.pose, models),
+                               rtol=1e-6, atol=1e-12)
     assert models[0][2, 2] > first.covariance[2, 2]      # learned from 29 matches: narrower
-    np.testing.assert_allclose(match.increment, increment(np.zeros(3), np.zeros(3)), atol=1e-12)
+    fallbacks_pose = compose(compose(out[k - 1].pose, first.increment), second.increment)
+    np.testing.assert_allclose(match.increment, between(fallbacks_pose, match.match.pose), atol=1e-12)
     assert lo.step(frames[k + 3]).carried is None
 
 
@@ -423,28 +406,38 @@ def _wheels_wrong_on_fallbacks(wrong: np.ndarray, k: int = 30, fallbacks: int = 
     return frames, truth
 
 
-def _carried_oracle(out, k: int, fallbacks: int, match_pose: np.ndarray) -> np.ndarray:
+def _carried_oracle(out, k: int, fallbacks: int, match_pose: np.ndarray, covariances=None) -> np.ndarray:
     """(3, 3) the covariance of the increment from the last fallback's pose to
-    ``match_pose`` that the fallbacks' errors make, each under the covariance it was given:
-    ΣJᵢΣᵢJᵢᵀ, Jᵢ by central differences in fallback i's robot-frame increment."""
+    ``match_pose`` that the errors of the fallbacks ``out[k:k + fallbacks]`` make, each
+    under its covariance in ``covariances`` (default: the one it was given): ΣJᵢΣᵢJᵢᵀ, Jᵢ
+    by central differences in fallback i's robot-frame increment."""
+    steps = out[k:k + fallbacks]
+    covariances = [s.covariance for s in steps] if covariances is None else covariances
     start = out[k - 1].pose
-    increments = [out[k + i].increment for i in range(fallbacks)]
 
     def increment(i, error):
         pose = start
-        for j, inc in enumerate(increments):
-            pose = compose(pose, inc + (error if j == i else 0.0))
+        for j, s in enumerate(steps):
+            pose = compose(pose, s.increment + (error if j == i else 0.0))
         return between(pose, match_pose)
 
     total = np.zeros((3, 3))
-    for i in range(fallbacks):
+    for i, cov in enumerate(covariances):
         J = np.zeros((3, 3))
         for c in range(3):
             h = np.zeros(3)
             h[c] = 1e-6
             J[:, c] = (increment(i, h) - increment(i, -h)) / 2e-6
-        total += J @ out[k + i].covariance @ J.T
+        total += J @ cov @ J.T
     return total
+
+
+def _in_increment_frame(covariance: np.ndarray, heading: float) -> np.ndarray:
+    """(3, 3) a front-end-frame pose ``covariance`` turned into the robot frame of a pose
+    with ``heading`` (rad), the frame of an increment from it."""
+    c, s = math.cos(heading), math.sin(heading)
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return rot.T @ covariance @ rot
 
 
 def test_the_gate_carries_the_fallbacks_error_as_each_was_given(monkeypatch):
@@ -468,17 +461,14 @@ def test_the_gate_carries_the_fallbacks_error_as_each_was_given(monkeypatch):
     prev = out[k + 1].pose
     step = lo.step(frames[k + 2])
     assert not step.fallback and len(gated) == 1
-    c, s_ = math.cos(prev[2]), math.sin(prev[2])
-    rot = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
-    own = rot.T @ step.match.covariance @ rot
+    own = _in_increment_frame(step.match.covariance, prev[2])
     carry = _carried_oracle(out, k, 2, step.match.pose)
     assert carry[2, 2] > 0.1 * own[2, 2]           # the carry is not lost in the rounding
     np.testing.assert_allclose(gated[0] - own, carry, rtol=1e-6, atol=1e-12)
     after = lo.step(frames[k + 3])
     assert not after.fallback and len(gated) == 2
-    c, s_ = math.cos(step.pose[2]), math.sin(step.pose[2])
-    rot = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
-    np.testing.assert_allclose(gated[1], rot.T @ after.match.covariance @ rot, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(gated[1], _in_increment_frame(after.match.covariance, step.pose[2]),
+                               rtol=1e-9, atol=1e-15)
 
 
 def test_the_match_after_a_fallback_is_gated_with_the_fallbacks_error():
@@ -502,9 +492,7 @@ def test_the_match_after_a_fallback_is_gated_with_the_fallbacks_error():
             fallback, step = out[k], out[k + 1]
             assert fallback.fallback and step.match is not None
             assert step.match.reason in ("ok", "inconsistent_with_odometry")
-            c, s_ = math.cos(fallback.pose[2]), math.sin(fallback.pose[2])   # the match step's prior pose
-            rot = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
-            match_cov = rot.T @ step.match.covariance @ rot
+            match_cov = _in_increment_frame(step.match.covariance, fallback.pose[2])  # from the prior pose
             odo_cov = lo.odometry_covariance(step.odometry_increment)
             e = between(fallback.pose, step.match.pose) - step.odometry_increment
             e[2] = (e[2] + math.pi) % (2 * math.pi) - math.pi

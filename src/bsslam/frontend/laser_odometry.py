@@ -187,12 +187,11 @@ class LaserOdometry:
         # the last well-constrained trusted matches' squared disagreement with the odometry,
         # forward, sideways and in heading, each in σ² of the odometry model; newest last
         self._odometry_misfit: deque[tuple[float, float, float]] = deque(maxlen=config.odometry_learned_window)
-        # since the last trusted match, the covariance (3, 3) of the fallbacks' error in
-        # :attr:`pose` (front-end frame) under the odometry model's covariance (what a
-        # filter step that predicted them with it must take back), and under the
-        # covariance each was given (what the wheels err by, for the odometry gate)
-        self._carried: np.ndarray | None = None
-        self._carried_given: np.ndarray | None = None
+        # since the last trusted match, the covariances (3, 3) of the fallbacks' error in
+        # :attr:`pose` (front-end frame): under the odometry model's covariance (what a
+        # filter step that predicted them with it must take back, ``carried``) and under
+        # the covariance each was given (what the wheels err by, for the odometry gate)
+        self._carried: tuple[np.ndarray, np.ndarray] | None = None
 
     def odometry_covariance(self, increment: np.ndarray) -> np.ndarray:
         """(3, 3) diagonal covariance of a raw odometry increment under the config's model."""
@@ -252,8 +251,8 @@ class LaserOdometry:
             # as `carried`: an episode longer than the window leaves no keyframe from
             # before it, and the match then undoes none of it. The window test below sees
             # no earlier steps after a fallback (they are cleared)
-            gated = covariance if self._carried_given is None else \
-                covariance + _increment_covariance(prev, match.pose, self._carried_given)
+            gated = covariance if self._carried is None else \
+                covariance + _increment_covariance(prev, match.pose, self._carried[1])
             if not self._agrees_with_odometry(increment, gated, odo_inc, odo_cov):
                 if self._agrees_over_steps(increment, gated, odo_inc, odo_cov):
                     self.stats.gated_over_steps += 1
@@ -265,8 +264,7 @@ class LaserOdometry:
             self.stats.degenerate += int(match.degenerate)
             fallback = False
             if self._carried is not None:
-                carried, self._carried = _increment_covariance(prev, match.pose, self._carried), None
-            self._carried_given = None
+                carried, self._carried = _increment_covariance(prev, match.pose, self._carried[0]), None
             self._recent.append((increment, covariance, odo_inc))   # maxlen 0 keeps none
             if self._learns_from(match):
                 self._learn_odometry(match, guess, prior_cov, odo_cov, rot)
@@ -276,10 +274,9 @@ class LaserOdometry:
             reason = "too_few_reference_points" if match is None else match.reason
             self.stats.fallbacks += 1
             self.stats.reasons[reason] = self.stats.reasons.get(reason, 0) + 1
-            before = np.zeros((3, 3)) if self._carried is None else self._carried
-            self._carried = compose_with_covariance(prev, before, increment, odo_cov)[1]
-            before = np.zeros((3, 3)) if self._carried_given is None else self._carried_given
-            self._carried_given = compose_with_covariance(prev, before, increment, covariance)[1]
+            model, given = self._carried or (np.zeros((3, 3)), np.zeros((3, 3)))
+            self._carried = (compose_with_covariance(prev, model, increment, odo_cov)[1],
+                             compose_with_covariance(prev, given, increment, covariance)[1])
         self.pose = np.array(_compose(prev3, increment.tolist()))
         keyframe = self._is_keyframe(self.pose)
         if keyframe:

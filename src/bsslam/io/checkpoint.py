@@ -38,14 +38,15 @@ from bsslam.io.atomic_file import TEMP_SUFFIX, atomic_write
 
 CHECKPOINT_FILE = "checkpoint.pkl"
 #: Bumped whenever the header or the state's layout changes: an older checkpoint is refused.
-FORMAT = 10  # 2: the pose graph pickles its arguments by name (loop_outliers); 3: a submap shape carries its walls' σ;
+FORMAT = 11  # 2: the pose graph pickles its arguments by name (loop_outliers); 3: a submap shape carries its walls' σ;
 #            4: the front end keeps its last trusted matches (frontend.odometry_gate_steps);
 #            5: a loop closure keeps its match's rival alignment (the vote between matches);
 #            6: the front end keeps its matches' disagreement with the odometry (odometry_learned_window);
 #            7: … in heading too (frontend.fallback_learned);
 #            8: the front end's motion compounds the fallbacks' wide covariance alongside (the walls' check);
 #            9: the front end carries the fallbacks' error to the match after them;
-#            10: … and gates that match with their error as given
+#            10: … and gates that match with their error as given;
+#            11: the two kept as one pair
 _MAGIC = "bsslam-checkpoint"
 
 
