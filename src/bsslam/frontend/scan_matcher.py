@@ -504,6 +504,40 @@ class ReferenceMap:
         score.flags.writeable = False
         return score
 
+    def _fine_poses(self, guess: np.ndarray, poses: np.ndarray, candidates: list[tuple[int, int]]
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The fine level's poses around the coarse candidates: ±1 coarse step (rotation
+        and translation) around each, as the blurred coarse peak can sit a whole step from
+        the true one.
+
+        Args:
+            guess: (3,) the search's centre (m, m, rad).
+            poses: (r, 3) :meth:`_coarse_poses` of ``guess``.
+            candidates: k ≥ 1 (rotation, offset) indices into the coarse (r, t) grid.
+
+        Returns:
+            cand_rot (k,) and cand_off (k,), the candidates' rotation and offset indices,
+            and the fine poses (k·f, 3) (m, m, rad), candidate major: candidate i's coarse
+            offset added to ``guess`` with each of its f fine rotations; the fine offsets
+            (t', 2) of :meth:`LikelihoodField.score_grid` are added to these.
+        """
+        grid = self._grid
+        cand_rot, cand_off = (np.array(c) for c in zip(*candidates))
+        shift = grid.offsets_m[cand_off]                                          # (k, 2) m from the guess
+        n_fine = grid.fine_rot.shape[0]
+        fine_poses = np.empty((len(candidates), n_fine, 3))
+        fine_poses[:, :, 0] = (guess[0] + shift[:, 0])[:, None]
+        fine_poses[:, :, 1] = (guess[1] + shift[:, 1])[:, None]
+        fine_poses[:, :, 2] = poses[cand_rot, 2][:, None] + grid.fine_rot
+        return cand_rot, cand_off, fine_poses.reshape(-1, 3)
+
+    def _fine_pose(self, fine_poses: np.ndarray, p: int, t: int) -> np.ndarray:
+        """(3,) a new array: the pose (m, m, rad) of fine cell (p, t), fine pose ``p`` of
+        :meth:`_fine_poses` (k·f, 3) moved by fine offset ``t`` (m)."""
+        pose = fine_poses[p].copy()
+        pose[:2] += self._grid.fine_offsets_m[t]
+        return pose
+
     def correlative(self, points: np.ndarray, guess: np.ndarray, coarse: np.ndarray | None = None
                     ) -> tuple[np.ndarray, float]:
         """Best pose (3,) of the two-level correlative search around ``guess`` and its fine
@@ -518,16 +552,8 @@ class ReferenceMap:
         score = score - grid.coarse_penalty
         candidates = _distinct_maxima(score, cfg.coarse_candidates, rot_sep=2, axis=grid.axis,
                                       off_sep=2 * grid.coarse_step, overwrite=True)
-        cand_rot, cand_off = (list(c) for c in zip(*candidates))
-        # Fine level: ±1 coarse step (rotation and translation) around each candidate: the
-        # blurred coarse peak can sit a whole step from the true one.
-        shift = grid.offsets_m[cand_off]                                          # (k, 2) m from the guess
-        n_fine = grid.fine_rot.shape[0]
-        fine_poses = np.empty((len(candidates), n_fine, 3))
-        fine_poses[:, :, 0] = (guess[0] + shift[:, 0])[:, None]
-        fine_poses[:, :, 1] = (guess[1] + shift[:, 1])[:, None]
-        fine_poses[:, :, 2] = poses[cand_rot, 2][:, None] + grid.fine_rot
-        fine_poses = fine_poses.reshape(-1, 3)
+        # Fine level: ±1 coarse step (rotation and translation) around each candidate.
+        cand_rot, cand_off, fine_poses = self._fine_poses(guess, poses, candidates)
         fine = self.fine.score_grid(points, fine_poses, grid.fine_half, 1)
         # The same penalty, split into its translation (k, t) and rotation (k, f) parts.
         trans = grid.fine_trans_prior[cand_off]
@@ -535,9 +561,7 @@ class ReferenceMap:
         fprior = (trans[:, None, :] + rot[:, :, None]).reshape(fine.shape)
         total = fine - cfg.search_prior_weight * fprior
         p, t = divmod(int(np.argmax(total)), total.shape[1])
-        best = fine_poses[p].copy()
-        best[:2] += grid.fine_offsets_m[t]
-        return best, float(fine[p, t])
+        return self._fine_pose(fine_poses, p, t), float(fine[p, t])
 
     def alternative(self, points: np.ndarray, guess: np.ndarray, best: np.ndarray, sep_m: float,
                     sep_rad: float, coarse: np.ndarray | None = None,
@@ -584,23 +608,14 @@ class ReferenceMap:
                                       off_sep=2 * grid.coarse_step, overwrite=True)
         if not candidates:
             return guess.copy(), 0.0
-        cand_rot, cand_off = (np.array(c) for c in zip(*candidates))
-        shift = grid.offsets_m[cand_off]
-        n_fine = grid.fine_rot.shape[0]
-        fine_poses = np.empty((len(candidates), n_fine, 3))
-        fine_poses[:, :, 0] = (guess[0] + shift[:, 0])[:, None]
-        fine_poses[:, :, 1] = (guess[1] + shift[:, 1])[:, None]
-        fine_poses[:, :, 2] = poses[cand_rot, 2][:, None] + grid.fine_rot
-        fine_poses = fine_poses.reshape(-1, 3)
+        _, _, fine_poses = self._fine_poses(guess, poses, candidates)
         fine = self.fine.score_grid(points, fine_poses, grid.fine_half, 1).astype(float)
         fine[near(fine_poses[:, 0:1] + grid.fine_offsets_m[None, :, 0],
                   fine_poses[:, 1:2] + grid.fine_offsets_m[None, :, 1], fine_poses[:, 2:3])] = -np.inf
         p, t = divmod(int(np.argmax(fine)), fine.shape[1])
         if not np.isfinite(fine[p, t]):
             return guess.copy(), 0.0
-        alt = fine_poses[p].copy()
-        alt[:2] += grid.fine_offsets_m[t]
-        return alt, float(fine[p, t])
+        return self._fine_pose(fine_poses, p, t), float(fine[p, t])
 
     # -- refinement ------------------------------------------------------------------------
 
