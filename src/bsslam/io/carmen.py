@@ -62,11 +62,11 @@ from typing import Iterator
 
 import numpy as np
 
-from bsslam.dataset import Frame, SkipCounter
+from bsslam.dataset import Frame
 from bsslam.errors import InputError
 from bsslam.io.carmen_messages import LASER_PARSERS, LaserMessage, MalformedLine, parse_odom, parse_param
 from bsslam.input_limits import angles_problem, invalid_ranges, offset_problem, pose_problem, wrap
-from bsslam.io.input_issues import InputIssues, checked_frames, require_regular_file
+from bsslam.io.input_issues import CheckedReader, InputIssues, require_regular_file
 from bsslam.io.no_return import detect_no_return_code, mark_no_return, no_return_threshold
 from bsslam.io.odometry_sync import OdometrySync
 from bsslam.io.reader_config import CARMEN_LASER_MESSAGES, ReaderConfig
@@ -122,7 +122,7 @@ class _StreamState:
         return offset
 
 
-class CarmenReader:
+class CarmenReader(CheckedReader):
     """A :class:`~bsslam.dataset.Dataset` over one CARMEN log.
 
     Args:
@@ -144,6 +144,8 @@ class CarmenReader:
     Raises:
         InputError: the file is missing or unreadable (at construction).
     """
+
+    _logger = logger   # the pass's summary warning (CheckedReader)
 
     def __init__(self, path: str | os.PathLike, *, strict: bool = False,
                  config: ReaderConfig | None = None, ground_truth: Trajectory | None = None):
@@ -259,16 +261,6 @@ class CarmenReader:
             return None
         top = max(valid.values())
         return next(k for k in CARMEN_LASER_MESSAGES if 2 * valid.get(k, 0) >= top)
-
-    @property
-    def skipped(self) -> SkipCounter:
-        """What the last pass skipped (counts and first locations)."""
-        return self._issues.skipped
-
-    def __iter__(self) -> Iterator[Frame]:
-        self._issues = InputIssues(self.path, self.strict)
-        yield from checked_frames(self._numbered_frames(), self.config.limits, self._issues)
-        self._issues.log_summary(logger)
 
     def _numbered_frames(self) -> Iterator[tuple[int, Frame]]:
         """(line, frame) of every scan that passed the line-level checks, before the

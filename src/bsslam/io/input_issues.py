@@ -1,15 +1,19 @@
-"""The readers' one policy for bad input: a counted skip by default, an error when strict."""
+"""The readers' one policy for bad input: a counted skip by default, an error when strict,
+and the pass over a reader's frames that applies it (:class:`CheckedReader`)."""
 
 from __future__ import annotations
 
 import logging
 import os
 import stat
-from typing import Iterable, Iterator
+from typing import TYPE_CHECKING, Iterable, Iterator
 
 from bsslam.dataset import Frame, SkipCounter
 from bsslam.errors import InputError
 from bsslam.input_limits import InputLimits, OdometryGate
+
+if TYPE_CHECKING:
+    from bsslam.io.reader_config import ReaderConfig
 
 
 class InputIssues:
@@ -103,3 +107,38 @@ def checked_frames(items: Iterable[tuple[int, Frame]], limits: InputLimits, issu
         counts = issues.skipped.counts
         why = ("; skipped: " + ", ".join(f"{v}× {k}" for k, v in counts.items())) if counts else ""
         raise InputError(f"no laser scans{why}", issues.path)
+
+
+class CheckedReader:
+    """The pass over a reader's frames that the readers share: each pass counts its own
+    skips in a fresh :class:`InputIssues`, sends the frames through
+    :func:`checked_frames` and ends with one summary warning.
+
+    Subclasses provide ``path`` (str), ``strict`` (bool), ``config.limits``
+    (:class:`~bsslam.input_limits.InputLimits`), :meth:`_numbered_frames`, and ``_logger``
+    (a class attribute: the logger the summary goes to, the reader module's own).
+
+    Attributes:
+        skipped: counts of what the last pass skipped, with the first locations.
+    """
+
+    path: str
+    strict: bool
+    config: ReaderConfig
+    _logger: logging.Logger
+    _issues: InputIssues
+
+    @property
+    def skipped(self) -> SkipCounter:
+        """What the last pass skipped (counts and first locations)."""
+        return self._issues.skipped
+
+    def __iter__(self) -> Iterator[Frame]:
+        self._issues = InputIssues(self.path, self.strict)
+        yield from checked_frames(self._numbered_frames(), self.config.limits, self._issues)
+        self._issues.log_summary(self._logger)
+
+    def _numbered_frames(self) -> Iterator[tuple[int, Frame]]:
+        """(line or message index, frame) of every scan that passed the reader's own
+        checks, before the odometry check; problems go to ``self._issues``."""
+        raise NotImplementedError

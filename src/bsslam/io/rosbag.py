@@ -51,10 +51,10 @@ except ImportError as exc:
     raise MissingDependencyError(f"reading ROS bags needs the rosbags package ({exc}): "
                                  "pip install 'bsslam[ros]'") from None
 
-from bsslam.dataset import Frame, SkipCounter
+from bsslam.dataset import Frame
 from bsslam.errors import InputError
 from bsslam.input_limits import beam_geometry_problem, invalid_ranges, pose_problem
-from bsslam.io.input_issues import InputIssues, checked_frames, require_regular_file
+from bsslam.io.input_issues import CheckedReader, InputIssues, require_regular_file
 from bsslam.io.no_return import mark_no_return, no_return_threshold
 from bsslam.io.odometry_sync import OdometrySync
 from bsslam.io.quaternion import yaw_from_quaternion
@@ -95,7 +95,7 @@ def _pick(kind: str, candidates: list[str], option: str) -> str:
     raise InputError(f"{len(candidates)} {kind} topics ({', '.join(candidates)}); choose one with {option}")
 
 
-class RosbagReader:
+class RosbagReader(CheckedReader):
     """A :class:`~bsslam.dataset.Dataset` over a ROS 1 ``.bag``, a ROS 2 bag folder, or a
     single ``.db3``/``.mcap`` file.
 
@@ -111,6 +111,8 @@ class RosbagReader:
     Raises:
         InputError: unreadable bag, missing or ambiguous topics (at construction).
     """
+
+    _logger = logger   # the pass's summary warning (CheckedReader)
 
     def __init__(self, path: str | os.PathLike, *, strict: bool = False, config: ReaderConfig | None = None,
                  scan_topic: str | None = None, odom_topic: str | None = None,
@@ -175,16 +177,6 @@ class RosbagReader:
         return scan_topic, odom_topic, topics[odom_topic] in TF_TYPES
 
     # -- reading ------------------------------------------------------------------------
-    @property
-    def skipped(self) -> SkipCounter:
-        """What the last pass skipped (counts and first locations)."""
-        return self._issues.skipped
-
-    def __iter__(self) -> Iterator[Frame]:
-        self._issues = InputIssues(self.path, self.strict)
-        yield from checked_frames(self._numbered_frames(), self.config.limits, self._issues)
-        self._issues.log_summary(logger)
-
     def _numbered_frames(self) -> Iterator[tuple[int, Frame]]:
         """(message index, frame) of every scan that passed the message-level checks."""
         sync = OdometrySync()
