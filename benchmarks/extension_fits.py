@@ -101,6 +101,7 @@ def _end_frame(attempt: Attempt) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def summary(name: str, attempts: list[Attempt]) -> str:
+    """One line of figures over ``attempts`` (those that reached the fit check)."""
     checked = [a for a in attempts if a.distances.size]
     if not checked:
         return f"{name}: {len(attempts)} extensions tried, none reached the fit check"
@@ -118,6 +119,7 @@ def summary(name: str, attempts: list[Attempt]) -> str:
 
 
 def plot(attempts: list[Attempt], path: Path) -> None:
+    """The first twelve ``attempts`` in the frame of each old end, into the PNG ``path``."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
