@@ -10,10 +10,12 @@ its ends (paper §III-F, :meth:`bsslam.slam.SplineSLAM._extend_feature`: the new
 stretch beyond the matched interval, continued with C² continuity) this records the new
 points' distances to the extended curve, as the fit check sees them
 (``mapping.max_extension_rms_m`` and ``extension_fit_probability``), and whether it was
-kept. It prints how many were tried and kept; the RMS distance (cm) at the 10th, 50th and
-90th percentiles; the median number of new points; the median RMS over the half of the
-points nearer the old end and over the farther half (an old end that points the wrong way
-errs near it already); and the median range of the old end from the robot (m).
+kept. It prints how many were tried (every call; some end before the fit, with too few
+points past the end or no well-posed fit), how many reached the fit check and how many
+were kept; the RMS distance (cm) at the 10th, 50th and 90th percentiles; the median number
+of new points; the median RMS over the half of the points nearer the old end (along its
+tangent) and over the farther half (an old end that points the wrong way errs near it
+already); and the median range of the old end from the robot (m).
 
 With ``--plot`` the first twelve attempts are drawn in the frame of the old end (its
 tangent along x, m; the offset along its normal in cm, so that centimetres show): the map
@@ -100,18 +102,27 @@ def _end_frame(attempt: Attempt) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return end, tangent, np.array([-tangent[1], tangent[0]])
 
 
+def _halves(attempt: Attempt) -> tuple[np.ndarray, np.ndarray]:
+    """The attempt's distances (m) of the half of its new points nearer the old end (along
+    the end's tangent) and of the farther half."""
+    end, tangent, _ = _end_frame(attempt)
+    d = attempt.distances[np.argsort((attempt.beyond - end) @ tangent, kind="stable")]
+    return d[: d.size // 2], d[d.size // 2:]
+
+
 def summary(name: str, attempts: list[Attempt]) -> str:
     """One line of figures over ``attempts`` (those that reached the fit check)."""
     checked = [a for a in attempts if a.distances.size]
     if not checked:
         return f"{name}: {len(attempts)} extensions tried, none reached the fit check"
     rms = np.array([np.sqrt(np.mean(a.distances ** 2)) for a in checked]) * 100
-    half = [(a.distances[: a.distances.size // 2], a.distances[a.distances.size // 2:]) for a in checked]
+    half = [_halves(a) for a in checked]
     near = np.median([np.sqrt(np.mean(h[0] ** 2)) for h in half if h[0].size]) * 100
     far = np.median([np.sqrt(np.mean(h[1] ** 2)) for h in half]) * 100
     ranges = [np.linalg.norm(_end_frame(a)[0] - a.robot[:2]) for a in checked]
     q10, q50, q90 = np.percentile(rms, [10, 50, 90])
-    return (f"{name}: {len(attempts)} extensions tried, {sum(a.kept for a in attempts)} kept; "
+    return (f"{name}: {len(attempts)} extensions tried, {len(checked)} reached the fit check, "
+            f"{sum(a.kept for a in attempts)} kept; "
             f"RMS distance of the new points to the extended curve {q10:.1f} / {q50:.1f} / {q90:.1f} cm "
             f"(10th / 50th / 90th percentile) over a median of {np.median([a.distances.size for a in checked]):.0f} "
             f"points; nearer half {near:.1f} cm, farther half {far:.1f} cm; old end {np.median(ranges):.1f} m "

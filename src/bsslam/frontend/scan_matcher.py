@@ -506,9 +506,9 @@ class ReferenceMap:
 
     def _fine_poses(self, guess: np.ndarray, poses: np.ndarray, candidates: list[tuple[int, int]]
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The fine level's poses around the coarse candidates: ±1 coarse step (rotation
-        and translation) around each, as the blurred coarse peak can sit a whole step from
-        the true one.
+        """The fine level's poses around the coarse candidates: ±1 coarse step around each,
+        in rotation here and in translation through the fine offsets the scoring adds, as
+        the blurred coarse peak can sit a whole step from the true one.
 
         Args:
             guess: (3,) the search's centre (m, m, rad).
