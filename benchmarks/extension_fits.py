@@ -33,14 +33,13 @@ from pathlib import Path
 import numpy as np
 
 from bsslam.config import SLAMConfig
-from bsslam.errors import FitError
 from bsslam.io import open_dataset
 from bsslam.io.config_file import load_config
 from bsslam.perturbed_dataset import PerturbedDataset
 from bsslam.pipeline import run_dataset
 from bsslam.slam import filter as filter_module
 from bsslam.slam.enlarge import beam_points
-from bsslam.spline import BSplineCurve, continuation_parameters, extend_curve
+from bsslam.spline import BSplineCurve
 
 
 @dataclass
@@ -50,7 +49,7 @@ class Attempt:
     curve: BSplineCurve          # the map spline before it
     side: str                    # 'left' or 'right'
     segment: np.ndarray          # (k, 2) the observed segment's points
-    beyond: np.ndarray           # (j, 2) the points past the end it was fitted to
+    beyond: np.ndarray           # (j, 2) the points past the end it was fitted to (none if it ended before)
     extended: BSplineCurve | None
     distances: np.ndarray        # (j,) the points' distances to the extended curve
     robot: np.ndarray            # (3,) the corrected pose
@@ -58,24 +57,27 @@ class Attempt:
 
 
 def record_attempts(log: Path, seed: int | None, config: SLAMConfig) -> list[Attempt]:
-    """Run ``log`` once and return every extension attempt, wrapping the filter's
-    extension (the same fit, redone here to keep its curve) and its fit check."""
+    """Run ``log`` once and return every extension attempt. The filter's extension, the
+    fit it calls (``extend_curve``, in the filter's module) and its fit check are wrapped
+    to record what they were given and gave; nothing is computed again here but the
+    segment's points for the pictures."""
     attempts: list[Attempt] = []
     extend, fits = filter_module.SplineSLAM._extend_feature, filter_module.SplineSLAM._extension_fits
+    fit = filter_module.extend_curve
 
     def recording_extend(slam, feature, obs, side, sel, offset):
-        curve = feature.curve(slam.state.x)
-        points = beam_points(slam.state.pose, offset, obs.angles, obs.ranges).points
-        beyond, params = continuation_parameters(curve, side, points[sel])
-        try:
-            extended = extend_curve(curve, side, points[sel][beyond], params, config.spline.knot_spacing_m,
-                                    max_noise_gain=config.spline.max_noise_gain).curve
-        except FitError:
-            extended = None
-        attempts.append(Attempt(curve, side, points, points[sel][beyond], extended, np.zeros(0), slam.state.pose.copy()))
-        kept = extend(slam, feature, obs, side, sel, offset)
-        attempts[-1].kept = kept
-        return kept
+        segment = beam_points(slam.state.pose, offset, obs.angles, obs.ranges).points
+        attempt = Attempt(feature.curve(slam.state.x), side, segment, np.zeros((0, 2)), None, np.zeros(0),
+                          slam.state.pose.copy())
+        attempts.append(attempt)
+        attempt.kept = extend(slam, feature, obs, side, sel, offset)
+        return attempt.kept
+
+    def recording_fit(curve, side, points, *args, **kwargs):
+        attempts[-1].beyond = np.array(points, dtype=float)
+        extension = fit(curve, side, points, *args, **kwargs)
+        attempts[-1].extended = extension.curve
+        return extension
 
     def recording_fits(slam, distances, new_control_points):
         attempts[-1].distances = np.asarray(distances, dtype=float).copy()
@@ -83,12 +85,14 @@ def record_attempts(log: Path, seed: int | None, config: SLAMConfig) -> list[Att
 
     filter_module.SplineSLAM._extend_feature = recording_extend
     filter_module.SplineSLAM._extension_fits = recording_fits
+    filter_module.extend_curve = recording_fit
     try:
         data = open_dataset(log)
         run_dataset(data if seed is None else PerturbedDataset(data, 0.001, seed), config, point_stride=0)
     finally:
         filter_module.SplineSLAM._extend_feature = extend
         filter_module.SplineSLAM._extension_fits = fits
+        filter_module.extend_curve = fit
     return attempts
 
 
