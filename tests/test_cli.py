@@ -135,7 +135,8 @@ def test_the_consistency_experiment_starts_from_a_config_file(tmp_path):
     assert np.abs(nees("with") - nees("without")).max() > 1e-3
     summary = json.loads((tmp_path / "ekf" / "latest" / "summary.json").read_text())
     assert summary["estimator"] == "ekf" and summary["config"] == str(cfg)
-    assert json.loads((tmp_path / "without" / "latest" / "summary.json").read_text())["estimator"] == "ekf"
+    without = json.loads((tmp_path / "without" / "latest" / "summary.json").read_text())
+    assert without["estimator"] == "ekf" and without["significant_bends"] is False   # the paper's filter
     bad = tmp_path / "bad.yaml"
     bad.write_text("observation:\n  sigma_shared_m: nope\n")
     result = runner.invoke(app, [str(a) for a in (*args, "--config", bad, "--out", tmp_path / "bad")])
@@ -146,12 +147,12 @@ def test_the_consistency_experiment_scales_the_simulated_noise(tmp_path):
     """The noise-scale options give the library's numbers with :func:`scaled_noise`, and
     summary.json records the scales and the results; a negative scale is a one-line error."""
     from bsslam.config import SLAMConfig
-    from bsslam.experiments.consistency import consistency_experiment, scaled_noise
+    from bsslam.experiments.consistency import consistency_experiment, paper_filter, scaled_noise
 
     args = ("experiment", "consistency", "--variant", "no-extension", "--runs", 2, "--steps", 8, "--workers", 1)
     invoke(*args, "--translation-noise-scale", 0.3, "--heading-noise-scale", 2, "--out", tmp_path / "s")
     nees = np.array([float(r[1]) for r in list(csv.reader(open(tmp_path / "s" / "latest" / "nees.csv")))[1:]])
-    expected = consistency_experiment("no-extension", runs=2, steps=8, workers=1, base=SLAMConfig(estimator="ekf"),
+    expected = consistency_experiment("no-extension", runs=2, steps=8, workers=1, base=paper_filter(SLAMConfig()),
                                       sim=scaled_noise(translation_scale=0.3, heading_scale=2.0))
     np.testing.assert_allclose(nees, expected.mean_nees, rtol=1e-5)
     summary = json.loads((tmp_path / "s" / "latest" / "summary.json").read_text())

@@ -893,10 +893,10 @@ def consistency(variant: Variant = typer.Option(..., help="Which filter variant.
     you can see which noise's non-linear effects take a filter out of it."""
     import dataclasses
 
-    from bsslam.experiments.consistency import consistency_experiment, scaled_noise, write_consistency
+    from bsslam.experiments.consistency import consistency_experiment, paper_filter, scaled_noise, write_consistency
 
     try:
-        base = _load_config(config_file) if config_file else _load_config(None).replace(estimator="ekf")
+        base = _load_config(config_file) if config_file else paper_filter(_load_config(None))
     except BsslamError as exc:
         fail(exc)
     if estimator is not None:
@@ -949,6 +949,7 @@ def heading_gain(runs: int = typer.Option(50, help="Monte Carlo runs per initial
                  estimator: Estimator = typer.Option(Estimator.ekf, help=ESTIMATOR_HELP),
                  out: Path = typer.Option(Path("results/heading-gain"), help=OUT_HELP)) -> None:
     """Paper Fig. 11: estimated heading σ of a stationary robot over updates."""
+    from bsslam.experiments.consistency import paper_filter
     from bsslam.experiments.heading import DEFAULT_SIGMAS_RAD, heading_gain_experiment, write_heading_gain
 
     from bsslam.config import SLAMConfig
@@ -959,7 +960,7 @@ def heading_gain(runs: int = typer.Option(50, help="Monte Carlo runs per initial
         with progress_bar("heading gain", runs * len(DEFAULT_SIGMAS_RAD), "runs") as update:
             res = heading_gain_experiment(runs=runs, updates=updates, seed=seed, workers=workers,
                                           scheduler=scheduler, progress=update,
-                                          base=SLAMConfig(estimator=estimator.value))
+                                          base=paper_filter(SLAMConfig()).replace(estimator=estimator.value))
         write_heading_gain(res, run_dir)
     table = Table("σ₀ (rad)", "σ_φ after 1 update", f"σ_φ after {updates}", title="Heading information gain")
     for s0, sig in res.items():

@@ -1,5 +1,6 @@
 """What a spline may tell the filter along itself (:mod:`bsslam.slam.bends`): the tangent
-angle's gradient against finite differences, the weight's limits, the scaled Jacobian's
+angle's gradient against finite differences, the batched bends of a table of curves against
+that one-curve form (the oracle, here), the weight's limits, the scaled Jacobian's
 invariants, and the filter down a straight simulated corridor, where the paper's update
 grows overconfident along the walls and the limited one stays inside the χ² band."""
 
@@ -16,9 +17,76 @@ from bsslam.experiments.consistency import simulation_config
 from bsslam.pipeline import run_dataset
 from bsslam.sim import SimConfig, simulate
 from bsslam.sim.worlds import large_corridor
-from bsslam.slam.bends import bend_weight, scale_along_splines, tangent_angle_rows
+from bsslam.slam import bend_kernels
+from bsslam.slam.bends import bend_weights, spline_bends
+from bsslam.spline.basis import basis_functions
+from bsslam.spline.batch import curve_table
 from bsslam.spline.curve import BSplineCurve
 from bsslam.spline.knots import clamped_knots_with_spans
+
+
+def tangent_angle_rows(knots: np.ndarray, degree: int, control_points: np.ndarray,
+                       t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The oracle: the tangent angle of one B-spline at parameters ``t`` (k,) and its
+    gradient, one parameter at a time from the Cox–de Boor derivatives. Returns angle (k,)
+    of C'(t) (rad) and rows (k, 2n) ∂angle/∂[x_0 … x_{n−1}, y_0 … y_{n−1}] (rad/m):
+    δθ = (C'_x δC'_y − C'_y δC'_x)/|C'|², δC' = Σ_j β'_j(t) δc_j."""
+    span, values = basis_functions(knots, degree, np.asarray(t, dtype=float), 1)
+    n = control_points.shape[0]
+    rows = np.zeros((len(span), 2 * n))
+    angle = np.empty(len(span))
+    for i, s in enumerate(span):
+        cols = np.arange(s - degree, s + 1)
+        d_beta = values[1, i]
+        d = d_beta @ control_points[cols]
+        scale = 1.0 / (d @ d)
+        angle[i] = np.arctan2(d[1], d[0])
+        rows[i, cols] = -d_beta * d[1] * scale
+        rows[i, n + cols] = d_beta * d[0] * scale
+    return angle, rows
+
+
+def scale_along_splines_oracle(H_c: np.ndarray, cols: np.ndarray, group: np.ndarray, weights: dict[int, float],
+                        control_indices: dict[int, tuple[np.ndarray, np.ndarray]]) -> None:
+    """The oracle of :func:`bend_kernels.scale_along_splines`, in numpy: scale, in place, the part of each spline's Jacobian rows along the spline's mean
+    tangent (over its rows) by its weight; one pass over all rows.
+
+    Args:
+        H_c: (m, c) the stacked Jacobian on ``cols`` (c,), the pose's x, y first; for every
+            row ∂z/∂(x, y) = g and ∂z/∂(x_j, y_j) = −β_j g (paper (22)–(27)), so g is scaled
+            in both: the robot and the spline moved along the spline alike.
+        group: (m,) each row's spline (its curve index).
+        weights: {curve index: w} of the splines to scale (others are left as they are).
+        control_indices: {curve index: (idx_x, idx_y)} the state indices of each weighted
+            spline's control points.
+    """
+    g = H_c[:, :2]
+    g2 = np.einsum("ij,ij->i", g, g)
+    labels = np.array(sorted(weights), dtype=np.intp)
+    slot = np.searchsorted(labels, group)
+    slot[slot == labels.shape[0]] = 0
+    weighted = labels[slot] == group
+    unit = g / np.sqrt(g2)[:, None]
+    normal = np.zeros((labels.shape[0], 2))
+    np.add.at(normal, slot[weighted], unit[weighted])
+    normal /= np.hypot(normal[:, 0], normal[:, 1])[:, None]
+    tangent = np.column_stack([-normal[:, 1], normal[:, 0]])[slot]      # (m, 2) each row's
+    keep = np.array([weights[int(c)] for c in labels])[slot]
+    removed = np.where(weighted, (1.0 - keep) * np.einsum("ij,ij->i", g, tangent), 0.0)
+    # β of each row's control points, from H = −β g, before g changes (zero off its spline)
+    idx_x = np.concatenate([control_indices[int(c)][0] for c in labels])
+    idx_y = np.concatenate([control_indices[int(c)][1] for c in labels])
+    position = np.full(max(int(cols.max()), int(idx_x.max()), int(idx_y.max())) + 1, -1, dtype=np.intp)
+    position[cols] = np.arange(cols.shape[0])
+    px, py = position[idx_x], position[idx_y]
+    present = (px >= 0) & (py >= 0)
+    px, py = px[present], py[present]
+    beta = -(H_c[:, px] * g[:, :1] + H_c[:, py] * g[:, 1:]) / g2[:, None]
+    shift = removed[:, None] * tangent
+    H_c[:, :2] -= shift
+    # −β (g − removed·tangent) = −β g + β·removed·tangent
+    H_c[:, px] += beta * shift[:, :1]
+    H_c[:, py] += beta * shift[:, 1:]
 
 
 def _curve(rng, n=7, degree=3):
@@ -45,12 +113,43 @@ def test_the_tangent_angle_and_its_gradient_match_the_curve_and_finite_differenc
         np.testing.assert_allclose(rows[:, j], (up - down) / (2 * eps), atol=1e-6)
 
 
+def test_the_bends_of_a_table_of_curves_match_the_one_curve_form():
+    """Curves of degrees 3, 2 and 3 in one table (the table pads to degree 3), hits anywhere
+    in their domains, the ends included: each curve's Δθ and its gradient over its own
+    control points as the one-curve oracle gives them."""
+    rng = np.random.default_rng(3)
+    curves = [_curve(rng, 7, 3), _curve(rng, 4, 2), _curve(rng, 9, 3)]
+    table = curve_table([c.knots for c in curves], [c.degree for c in curves])
+    stacked = np.vstack([c.control_points for c in curves])
+    which = np.array([0, 1, 2, 0])
+    lo, hi = table.lo[which], table.hi[which]
+    t_first = np.array([lo[0], lo[1] + 0.3, lo[2] + 1.1, lo[3] + 2.5])
+    t_last = np.array([hi[0], hi[1] - 0.1, hi[2], lo[3] + 2.5 + 1e-3])
+    bend, rows, grad = spline_bends(table, stacked, which, t_first, t_last)
+    for i, c in enumerate(which):
+        curve = curves[c]
+        angle, oracle = tangent_angle_rows(curve.knots, curve.degree, curve.control_points,
+                                           np.array([t_first[i], t_last[i]]))
+        assert bend[i] == pytest.approx(np.angle(np.exp(1j * (angle[1] - angle[0]))), abs=1e-12)
+        full = np.zeros((stacked.shape[0], 2))          # the batched gradient summed per row
+        np.add.at(full, rows[i], grad[i])
+        n, start = curve.n_control, table.cp_start[c]
+        np.testing.assert_allclose(full[start:start + n, 0], oracle[1, :n] - oracle[0, :n], atol=1e-12)
+        np.testing.assert_allclose(full[start:start + n, 1], oracle[1, n:] - oracle[0, n:], atol=1e-12)
+        outside = np.ones(stacked.shape[0], dtype=bool)
+        outside[start:start + n] = False
+        assert not full[outside].any()                  # nothing on another curve's control points
+
+
 def test_the_weight_is_zero_within_the_noise_continuous_and_tends_to_one():
-    assert bend_weight(0.0, 1e-6) == 0.0 and bend_weight(0.0, 0.0) == 0.0
-    assert bend_weight(1e-3, 1e-6) == 0.0                     # exactly at σ
-    assert bend_weight(1e-3 * (1 + 1e-12), 1e-6) == pytest.approx(0.0, abs=1e-11)
-    assert bend_weight(-3e-3, 1e-6) == pytest.approx(1 - 1 / 9)
-    assert bend_weight(1.0, 1e-6) == pytest.approx(1.0, abs=1e-5)
+    def w(bend, variance):
+        return float(bend_weights(np.array([bend]), np.array([variance]))[0])
+
+    assert w(0.0, 1e-6) == 0.0 and w(0.0, 0.0) == 0.0
+    assert w(1e-3, 1e-6) == 0.0                     # exactly at σ
+    assert w(1e-3 * (1 + 1e-12), 1e-6) == pytest.approx(0.0, abs=1e-11)
+    assert w(-3e-3, 1e-6) == pytest.approx(1 - 1 / 9)
+    assert w(1.0, 1e-6) == pytest.approx(1.0, abs=1e-5)
 
 
 def _rows(rng, m=12):
@@ -80,7 +179,7 @@ def test_scaling_removes_the_along_spline_part_and_keeps_the_gauge():
 
     def scaled(w):
         out = H.copy()
-        scale_along_splines(out, cols, group, {0: w}, spline)
+        scale_along_splines_oracle(out, cols, group, {0: w}, spline)
         return out
 
     out = scaled(0.0)
@@ -102,6 +201,61 @@ def test_scaling_removes_the_along_spline_part_and_keeps_the_gauge():
     # w = 1 changes nothing; w = ½ removes half
     np.testing.assert_allclose(scaled(1.0), H, atol=1e-15)
     np.testing.assert_allclose(scaled(0.5)[mine, :2] @ tangent, 0.5 * (H[mine, :2] @ tangent), atol=1e-12)
+
+
+def test_the_compiled_scaling_matches_the_numpy_oracle():
+    """Two weighted splines (one with every weight in between) and one left alone, rows
+    interleaved, a control point outside the columns: the kernel's rows as the oracle's."""
+    rng = np.random.default_rng(2)
+    H_a, _, idx_x, idx_y = _rows(rng)
+    m_b = 7
+    g_b = rng.normal(size=(m_b, 2))
+    beta_b = rng.dirichlet(np.ones(2), size=m_b)
+    H = np.zeros((H_a.shape[0] + m_b, 20))
+    H[:H_a.shape[0], :16] = H_a
+    H[H_a.shape[0]:, :3] = np.column_stack([g_b, rng.normal(size=m_b)])
+    H[H_a.shape[0]:, 16:18] = -beta_b * g_b[:, :1]          # spline 2: x at 16, 17; y at 18, 19
+    H[H_a.shape[0]:, 18:20] = -beta_b * g_b[:, 1:]
+    order = rng.permutation(H.shape[0])
+    group = np.r_[np.zeros(H_a.shape[0] - 3, dtype=np.intp), np.full(3, 5), np.full(m_b, 2)][order]
+    H = H[order]
+    cols = np.arange(20)
+    spline_2 = (np.array([16, 17, 40]), np.array([18, 19, 41]))  # a third control point not in cols
+    for w0, w2 in ((0.0, 0.0), (0.3, 0.9), (0.999, 0.5)):
+        expected = H.copy()
+        scale_along_splines_oracle(expected, cols, group, {0: w0, 2: w2}, {0: (idx_x, idx_y), 2: spline_2})
+        out = H.copy()
+        bend_kernels.scale_along_splines(out, cols, group, np.array([0, 2]), np.array([w0, w2]),
+                                         np.r_[idx_x, spline_2[0]], np.r_[idx_y, spline_2[1]],
+                                         np.array([0, idx_x.size, idx_x.size + 3]))
+        np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-14)
+        assert not np.array_equal(out, H)
+
+
+def test_the_compiled_bookkeeping_matches_numpy():
+    """The weighed splines and their extreme hits, and the gradients gathered per state
+    index, as np.unique, ufunc.at and a dense scatter give them."""
+    rng = np.random.default_rng(4)
+    group = rng.integers(0, 9, 40)
+    group[group == 4] = 3                       # curve 4: no rows
+    group[0] = 6
+    group[group == 6] = 7
+    group[0] = 6                                # curve 6: one row, left out
+    hit_t = rng.uniform(0.0, 5.0, 40)
+    first_state_row = np.where(np.arange(9) == 2, -1, 3 + 10 * np.arange(9))   # curve 2 fixed
+    labels, t_first, t_last = bend_kernels.bend_groups(group, hit_t, first_state_row)
+    expected = [c for c in np.unique(group) if np.count_nonzero(group == c) >= 2 and first_state_row[c] >= 0]
+    np.testing.assert_array_equal(labels, expected)
+    np.testing.assert_array_equal(t_first, [hit_t[group == c].min() for c in expected])
+    np.testing.assert_array_equal(t_last, [hit_t[group == c].max() for c in expected])
+
+    index = rng.integers(3, 30, (4, 16))
+    grad = rng.normal(size=(4, 16))
+    union, A = bend_kernels.bend_gradient_rows(index, grad)
+    np.testing.assert_array_equal(union, np.unique(index))
+    dense = np.zeros((4, 30))
+    np.add.at(dense, (np.repeat(np.arange(4), 16), index.ravel()), grad.ravel())
+    np.testing.assert_allclose(A, dense[:, union], rtol=1e-14, atol=1e-15)
 
 
 def _corridor_nees(bends: bool, seeds: int = 8, steps: int = 50) -> float:

@@ -25,95 +25,39 @@ from __future__ import annotations
 
 import numpy as np
 
-from bsslam.spline.basis import basis_functions
-from bsslam.trajectory import wrap_angle
+from bsslam.slam import bend_kernels
+from bsslam.spline.batch import CurveTable
 
 
-def tangent_angle_rows(knots: np.ndarray, degree: int, control_points: np.ndarray,
-                       t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The tangent angle of a B-spline at parameters ``t`` and its gradient.
+def spline_bends(table: CurveTable, control_points: np.ndarray, curve: np.ndarray, t_first: np.ndarray,
+                 t_last: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The angle Δθ each of g curves of ``table`` turns between two parameters, and its
+    gradient over the curves' control points, for all of them at once.
 
     Args:
-        knots, degree: the spline's knots and degree; control_points: (n, 2) (m).
-        t: (k,) parameters within the domain (m).
+        table: the curves' knot structure; control_points: (N, 2) its stacked control
+            points at the linearisation point (m).
+        curve: (g,) curve indices; t_first, t_last: (g,) the parameters of each curve's
+            first and last hit (m).
 
     Returns:
-        ``(angle, rows)``: angle (k,) of C'(t) (rad), rows (k, 2n) ∂angle/∂[x_0 … x_{n−1},
-        y_0 … y_{n−1}] (rad/m): δθ = (C'_x δC'_y − C'_y δC'_x)/|C'|², δC' = Σ_j β'_j(t) δc_j.
+        ``(bend, rows, grad)``: bend (g,) the tangent angle at ``t_last`` less that at
+        ``t_first``, wrapped (rad); rows (g, 2(p+1)) the control-point rows (of
+        ``control_points``) the tangents depend on, the first parameter's window then the
+        last's; grad (g, 2(p+1), 2) ∂Δθ/∂(x, y) of each of those rows (rad/m), zero on a
+        window's padding. A row may appear twice (both windows); its gradients then add.
+        The tangent angle of C'(t) = Σ_j β'_j(t) c_j moves by
+        δθ = (C'_x δC'_y − C'_y δC'_x)/|C'|².
     """
-    span, values = basis_functions(knots, degree, np.asarray(t, dtype=float), 1)
-    n = control_points.shape[0]
-    rows = np.zeros((len(span), 2 * n))
-    angle = np.empty(len(span))
-    for i, s in enumerate(span):
-        cols = np.arange(s - degree, s + 1)
-        d_beta = values[1, i]
-        d = d_beta @ control_points[cols]
-        scale = 1.0 / (d @ d)
-        angle[i] = np.arctan2(d[1], d[0])
-        rows[i, cols] = -d_beta * d[1] * scale
-        rows[i, n + cols] = d_beta * d[0] * scale
-    return angle, rows
+    piece, u, _ = table.locate(np.concatenate([curve, curve]), np.concatenate([t_first, t_last]))
+    return bend_kernels.tangent_turns(table.power_basis, table.window, table.real, piece, u,
+                                      np.ascontiguousarray(control_points, dtype=float))
 
 
-def bend_weight(bend_rad: float, variance: float) -> float:
-    """w = max(0, 1 − σ²/Δθ²) ∈ [0, 1]: 0 for a bend within its noise, → 1 for a
-    significant one (0 for no bend at all)."""
-    if bend_rad * bend_rad <= variance:
-        return 0.0
-    return 1.0 - variance / (bend_rad * bend_rad)
-
-
-def spline_bend(hit_t: np.ndarray, knots: np.ndarray, degree: int,
-                control_points: np.ndarray) -> tuple[float, np.ndarray]:
-    """The angle Δθ (rad) one spline turns between its first and last hit (``hit_t`` (k,),
-    m) and its gradient (2n,) over the spline's [x_0 … x_{n−1}, y_0 … y_{n−1}] (rad/m).
-
-    Args:
-        knots, degree, control_points: the spline at the linearisation point, (n, 2) (m).
-    """
-    angle, grad = tangent_angle_rows(knots, degree, control_points, np.array([hit_t.min(), hit_t.max()]))
-    return float(wrap_angle(angle[1] - angle[0])), grad[1] - grad[0]
-
-
-def scale_along_splines(H_c: np.ndarray, cols: np.ndarray, group: np.ndarray, weights: dict[int, float],
-                        control_indices: dict[int, tuple[np.ndarray, np.ndarray]]) -> None:
-    """Scale, in place, the part of each spline's Jacobian rows along the spline's mean
-    tangent (over its rows) by its weight; one pass over all rows.
-
-    Args:
-        H_c: (m, c) the stacked Jacobian on ``cols`` (c,), the pose's x, y first; for every
-            row ∂z/∂(x, y) = g and ∂z/∂(x_j, y_j) = −β_j g (paper (22)–(27)), so g is scaled
-            in both: the robot and the spline moved along the spline alike.
-        group: (m,) each row's spline (its curve index).
-        weights: {curve index: w} of the splines to scale (others are left as they are).
-        control_indices: {curve index: (idx_x, idx_y)} the state indices of each weighted
-            spline's control points.
-    """
-    g = H_c[:, :2]
-    g2 = np.einsum("ij,ij->i", g, g)
-    labels = np.array(sorted(weights), dtype=np.intp)
-    slot = np.searchsorted(labels, group)
-    slot[slot == labels.shape[0]] = 0
-    weighted = labels[slot] == group
-    unit = g / np.sqrt(g2)[:, None]
-    normal = np.zeros((labels.shape[0], 2))
-    np.add.at(normal, slot[weighted], unit[weighted])
-    normal /= np.hypot(normal[:, 0], normal[:, 1])[:, None]
-    tangent = np.column_stack([-normal[:, 1], normal[:, 0]])[slot]      # (m, 2) each row's
-    keep = np.array([weights[int(c)] for c in labels])[slot]
-    removed = np.where(weighted, (1.0 - keep) * np.einsum("ij,ij->i", g, tangent), 0.0)
-    # β of each row's control points, from H = −β g, before g changes (zero off its spline)
-    idx_x = np.concatenate([control_indices[int(c)][0] for c in labels])
-    idx_y = np.concatenate([control_indices[int(c)][1] for c in labels])
-    position = np.full(max(int(cols.max()), int(idx_x.max()), int(idx_y.max())) + 1, -1, dtype=np.intp)
-    position[cols] = np.arange(cols.shape[0])
-    px, py = position[idx_x], position[idx_y]
-    present = (px >= 0) & (py >= 0)
-    px, py = px[present], py[present]
-    beta = -(H_c[:, px] * g[:, :1] + H_c[:, py] * g[:, 1:]) / g2[:, None]
-    shift = removed[:, None] * tangent
-    H_c[:, :2] -= shift
-    # −β (g − removed·tangent) = −β g + β·removed·tangent
-    H_c[:, px] += beta * shift[:, :1]
-    H_c[:, py] += beta * shift[:, 1:]
+def bend_weights(bend_rad: np.ndarray, variance: np.ndarray) -> np.ndarray:
+    """w = max(0, 1 − σ²/Δθ²) ∈ [0, 1] of each bend (g,) (rad) under its variance (g,)
+    (rad²): 0 for a bend within its noise, → 1 for a significant one (0 for no bend at all)."""
+    b2 = np.square(np.asarray(bend_rad, dtype=float))
+    v = np.asarray(variance, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(b2 <= v, 0.0, 1.0 - v / b2)

@@ -33,8 +33,8 @@ import numpy as np
 
 from bsslam.config import ObservationConfig
 from bsslam.scan import ObservedSpline
-from bsslam.slam import beam_kernels, range_kernels
-from bsslam.slam.bends import bend_weight, scale_along_splines, spline_bend
+from bsslam.slam import beam_kernels, bend_kernels, range_kernels
+from bsslam.slam.bends import bend_weights, spline_bends
 from bsslam.slam.association import Match
 from bsslam.se2 import compose
 from bsslam.slam.map_curves import MapCurves
@@ -224,41 +224,42 @@ class RangeModel:
         return dataclasses.replace(lin, H_c=H_c, residual=residual)
 
     def bend_weights(self, beams: Beams, lin: Linearization, curves: MapCurves, x: np.ndarray,
-                     variances_of) -> dict[int, float]:
-        """How much of what each map spline of ``lin`` says along itself its bend supports:
-        {curve index: w} for the splines with w < 1 (:mod:`bsslam.slam.bends`); empty
-        unless ``observation.significant_bends_only``. ``variances_of(state_indices (k,),
-        rows (g, k))`` gives the prior variances (g,) of linear functions of the state (a
-        covariance window's), asked once for all the splines; the bend is taken at ``x``
-        between the extreme hits of ``lin``'s rows."""
+                     variances_of) -> tuple[np.ndarray, np.ndarray] | None:
+        """How much of what each map spline of ``lin`` says along itself its bend supports
+        (:mod:`bsslam.slam.bends`): ``(curves (L,), w (L,))`` for the splines with w < 1, or
+        None (no such spline, or ``observation.significant_bends_only`` off).
+        ``variances_of(state_indices (k,), rows (g, k))`` gives the prior variances (g,) of
+        linear functions of the state (a covariance window's), asked once for all the
+        splines; the bend is taken at ``x`` between the extreme hits of ``lin``'s rows."""
         if not self.significant_bends_only:
-            return {}
-        group = beams.curve[lin.beam]
-        found = []                          # (curve, Δθ, its state indices, its gradient)
-        for c in np.unique(group):          # a handful of splines a scan
-            feature = curves.features[c]
-            rows = group == c
-            if np.count_nonzero(rows) < 2 or not feature.in_state:
-                continue
-            bend, grad = spline_bend(lin.hit_t[rows], feature.knots, feature.degree, feature.control_points(x))
-            found.append((int(c), bend, np.concatenate([feature.idx_x, feature.idx_y]), grad))
-        if not found:
-            return {}
-        union = np.unique(np.concatenate([f[2] for f in found]))
-        A = np.zeros((len(found), union.shape[0]))
-        for i, (_, _, idx, grad) in enumerate(found):
-            A[i, np.searchsorted(union, idx)] = grad
+            return None
+        # the splines with two hits or more whose control points are in the state (a handful a scan)
+        table = curves.table
+        labels, t_first, t_last = bend_kernels.bend_groups(beams.curve[lin.beam], lin.hit_t,
+                                                           curves.state_rows[table.cp_start[:-1], 0])
+        if labels.shape[0] == 0:
+            return None
+        bend, rows, grad = spline_bends(table, curves.control_points(x), labels, t_first, t_last)
+        g = labels.shape[0]
+        union, A = bend_kernels.bend_gradient_rows(curves.state_rows[rows].reshape(g, -1), grad.reshape(g, -1))
         variances = variances_of(union, A)
-        weights = {c: bend_weight(bend, float(v)) for (c, bend, _, _), v in zip(found, variances)}
-        return {c: w for c, w in weights.items() if w < 1.0}
+        weights = bend_weights(bend, variances)
+        scaled = weights < 1.0
+        return (labels[scaled], weights[scaled]) if scaled.any() else None
 
     def limit_along_splines(self, beams: Beams, lin: Linearization, curves: MapCurves,
-                            weights: dict[int, float]) -> Linearization:
+                            weights: tuple[np.ndarray, np.ndarray] | None) -> Linearization:
         """``lin`` with each spline's rows scaled along the spline by its weight
-        (:meth:`bend_weights`; ``lin`` itself when there is none)."""
-        if not weights:
+        (:meth:`bend_weights`; ``lin`` itself when there is none); compiled:
+        :func:`bend_kernels.scale_along_splines`."""
+        if weights is None:
             return lin
+        labels, w = weights
+        features = [curves.features[int(c)] for c in labels]
+        offsets = np.zeros(len(features) + 1, dtype=np.intp)
+        offsets[1:] = np.cumsum([f.idx_x.shape[0] for f in features])
         H_c = lin.H_c.copy()
-        scale_along_splines(H_c, lin.cols, beams.curve[lin.beam], weights,
-                            {c: (curves.features[c].idx_x, curves.features[c].idx_y) for c in weights})
+        bend_kernels.scale_along_splines(H_c, lin.cols, beams.curve[lin.beam], labels, w,
+                                         np.concatenate([f.idx_x for f in features]),
+                                         np.concatenate([f.idx_y for f in features]), offsets)
         return dataclasses.replace(lin, H_c=H_c)

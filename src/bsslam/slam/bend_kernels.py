@@ -1,0 +1,216 @@
+"""Compiled steps of limiting what a map spline says along itself to its significant bend
+(:mod:`bsslam.slam.bends`): which splines are weighed and where their hits lie
+(:func:`bend_groups`), the angle each turns between them and its gradient
+(:func:`tangent_turns`), those gradients as rows over the state (:func:`bend_gradient_rows`)
+and the Jacobian's rows scaled along their splines (:func:`scale_along_splines`). Written as
+numpy they were a few dozen small array calls per linearisation, about a fifth of a
+simulated run's time; the numpy forms are the oracles in ``tests/slam/test_bends.py``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from bsslam.compiled import jit
+
+
+@jit
+def tangent_turns(power_basis, window, real, piece, u, control_points):
+    """The angle Δθ each of g curves turns between two parameters, and its gradient over
+    the control points the two tangents depend on.
+
+    Args:
+        power_basis, window, real: a :class:`~bsslam.spline.batch.CurveTable`'s arrays.
+        piece, u: (2g,) the pieces and local parameters (m) of the first parameters of the g
+            curves, then of their last ones (:meth:`CurveTable.locate`).
+        control_points: (N, 2) the table's stacked control points (m).
+
+    Returns:
+        ``(bend, rows, grad)``: bend (g,) the tangent angle at the last parameter less that
+        at the first, wrapped to (−π, π] (rad); rows (g, 2(p+1)) the control-point rows the
+        tangents depend on, the first parameter's window then the last's; grad (g, 2(p+1),
+        2) ∂Δθ/∂(x, y) of each (rad/m), zero on a window's padding (a row in both windows:
+        its gradients add). The tangent angle of C'(t) = Σ_j β'_j(t) c_j moves by
+        δθ = (C'_x δC'_y − C'_y δC'_x)/|C'|².
+    """
+    n2 = piece.shape[0]
+    g = n2 // 2
+    w = window.shape[1]
+    p = power_basis.shape[1] - 1
+    angle = np.empty(n2)
+    rows = np.empty((g, 2 * w), dtype=window.dtype)
+    grad = np.zeros((g, 2 * w, 2))
+    d_beta = np.empty(w)
+    for m in range(n2):
+        s = piece[m]
+        i = m % g
+        sign = -1.0 if m < g else 1.0
+        offset = 0 if m < g else w
+        dx = 0.0
+        dy = 0.0
+        for r in range(w):
+            # β'_r(t) = Σ_k k · power_basis[s, k, r] · u^(k−1)
+            value = 0.0
+            if real[s, r]:
+                power = 1.0
+                for k in range(1, p + 1):
+                    value += k * power_basis[s, k, r] * power
+                    power *= u[m]
+            d_beta[r] = value
+            row = window[s, r]
+            dx += value * control_points[row, 0]
+            dy += value * control_points[row, 1]
+        scale = 1.0 / (dx * dx + dy * dy)
+        angle[m] = math.atan2(dy, dx)
+        for r in range(w):
+            rows[i, offset + r] = window[s, r]
+            grad[i, offset + r, 0] = -sign * d_beta[r] * dy * scale
+            grad[i, offset + r, 1] = sign * d_beta[r] * dx * scale
+    bend = np.empty(g)
+    for i in range(g):
+        a = angle[g + i] - angle[i]
+        bend[i] = math.pi - (math.pi - a) % (2.0 * math.pi)
+    return bend, rows, grad
+
+
+@jit
+def scale_along_splines(H_c, cols, group, labels, weights, idx_x, idx_y, offsets):
+    """Scale, in place, the part of each weighted spline's Jacobian rows along the spline's
+    mean tangent (over its rows) by its weight (:mod:`bsslam.slam.bends`).
+
+    For every row ∂z/∂(x, y) = g and ∂z/∂(x_j, y_j) = −β_j g (paper (22)–(27)), so g is
+    scaled in both: the robot and the spline moved along the spline alike. One pass over
+    the rows; the numpy form is the oracle in ``tests/slam/test_bends.py``.
+
+    Args:
+        H_c: (m, c) the stacked Jacobian on ``cols`` (c,) (state indices, the pose's x, y
+            first).
+        group: (m,) each row's spline (its curve index).
+        labels: (L,) the curves to scale; weights: (L,) their weights w ∈ [0, 1).
+        idx_x, idx_y: the state indices of the control points' x and y of ``labels[l]`` at
+            ``offsets[l] … offsets[l+1]−1``; offsets (L+1,).
+    """
+    m = H_c.shape[0]
+    n_labels = labels.shape[0]
+    top = 0
+    for i in range(m):
+        top = max(top, group[i] + 1)
+    for s in range(n_labels):
+        top = max(top, labels[s] + 1)
+    slot_of = np.full(top, -1, dtype=np.intp)
+    for s in range(n_labels):
+        slot_of[labels[s]] = s
+    normal = np.zeros((n_labels, 2))
+    for i in range(m):
+        s = slot_of[group[i]]
+        if s >= 0:
+            norm = np.sqrt(H_c[i, 0] * H_c[i, 0] + H_c[i, 1] * H_c[i, 1])
+            normal[s, 0] += H_c[i, 0] / norm
+            normal[s, 1] += H_c[i, 1] / norm
+    for s in range(n_labels):
+        norm = np.sqrt(normal[s, 0] * normal[s, 0] + normal[s, 1] * normal[s, 1])
+        normal[s, 0] /= norm
+        normal[s, 1] /= norm
+    size = 0
+    for k in range(cols.shape[0]):
+        size = max(size, cols[k] + 1)
+    for k in range(idx_x.shape[0]):
+        size = max(size, idx_x[k] + 1, idx_y[k] + 1)
+    position = np.full(size, -1, dtype=np.intp)
+    for k in range(cols.shape[0]):
+        position[cols[k]] = k
+    for i in range(m):
+        s = slot_of[group[i]]
+        if s < 0:
+            continue
+        gx = H_c[i, 0]
+        gy = H_c[i, 1]
+        g2 = gx * gx + gy * gy
+        tx = -normal[s, 1]
+        ty = normal[s, 0]
+        removed = (1.0 - weights[s]) * (gx * tx + gy * ty)
+        shift_x = removed * tx
+        shift_y = removed * ty
+        # β of the row's control points from H = −β g, before g changes
+        for k in range(offsets[s], offsets[s + 1]):
+            px = position[idx_x[k]]
+            py = position[idx_y[k]]
+            if px < 0 or py < 0:
+                continue
+            beta = -(H_c[i, px] * gx + H_c[i, py] * gy) / g2
+            H_c[i, px] += beta * shift_x
+            H_c[i, py] += beta * shift_y
+        H_c[i, 0] -= shift_x
+        H_c[i, 1] -= shift_y
+
+
+@jit
+def bend_groups(group, hit_t, first_state_row):
+    """The map splines whose bends are weighed (:mod:`bsslam.slam.bends`): those with two
+    rows or more whose control points are in the state, and their extreme hits.
+
+    Args:
+        group: (m,) each row's spline (its curve index ≥ 0); hit_t: (m,) where each row's
+            beam hits its spline (m).
+        first_state_row: (C,) the state index of each curve's first control point's x (−1
+            for the fixed control points of localisation mode).
+
+    Returns:
+        ``(labels (L,), t_first (L,), t_last (L,))`` in increasing curve order.
+    """
+    m = group.shape[0]
+    top = 0
+    for i in range(m):
+        top = max(top, group[i] + 1)
+    count = np.zeros(top, dtype=np.intp)
+    lo = np.full(top, np.inf)
+    hi = np.full(top, -np.inf)
+    for i in range(m):
+        c = group[i]
+        count[c] += 1
+        lo[c] = min(lo[c], hit_t[i])
+        hi[c] = max(hi[c], hit_t[i])
+    n = 0
+    for c in range(top):
+        if count[c] >= 2 and first_state_row[c] >= 0:
+            n += 1
+    labels = np.empty(n, dtype=np.intp)
+    t_first = np.empty(n)
+    t_last = np.empty(n)
+    n = 0
+    for c in range(top):
+        if count[c] >= 2 and first_state_row[c] >= 0:
+            labels[n] = c
+            t_first[n] = lo[c]
+            t_last[n] = hi[c]
+            n += 1
+    return labels, t_first, t_last
+
+
+@jit
+def bend_gradient_rows(state_index, grad):
+    """The bends' gradients as rows over the state indices they touch: ``(union (k,),
+    A (g, k))`` with A[i, union == s] the sum of ``grad[i]``'s entries at state index s.
+
+    Args:
+        state_index: (g, r) the state index of each gradient entry; grad: (g, r) its value.
+    """
+    g, r = state_index.shape
+    flat = np.sort(state_index.ravel())
+    k = 0
+    for j in range(flat.shape[0]):
+        if j == 0 or flat[j] != flat[j - 1]:
+            k += 1
+    union = np.empty(k, dtype=flat.dtype)
+    k = 0
+    for j in range(flat.shape[0]):
+        if j == 0 or flat[j] != flat[j - 1]:
+            union[k] = flat[j]
+            k += 1
+    A = np.zeros((g, k))
+    for i in range(g):
+        for j in range(r):
+            A[i, np.searchsorted(union, state_index[i, j])] += grad[i, j]
+    return union, A
