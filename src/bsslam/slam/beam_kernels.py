@@ -165,4 +165,3 @@ def whiten_shared(group, ratio, H_c, residual):
         for j in range(n_cols):
             out_H[i, j] = H_c[i, j] - alpha[g] * sum_H[g, j]
     return out_H, out_r
-
