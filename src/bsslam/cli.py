@@ -955,7 +955,7 @@ def heading_gain(runs: int = typer.Option(50, help="Monte Carlo runs per initial
     from bsslam.config import SLAMConfig
 
     settings = {"experiment": "heading-gain", "runs": runs, "updates": updates, "seed": seed,
-                "estimator": estimator.value}
+                "estimator": estimator.value, "significant_bends": False}   # the paper's update
     with experiment_folder(out, settings) as run_dir:
         with progress_bar("heading gain", runs * len(DEFAULT_SIGMAS_RAD), "runs") as update:
             res = heading_gain_experiment(runs=runs, updates=updates, seed=seed, workers=workers,

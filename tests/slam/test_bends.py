@@ -47,9 +47,10 @@ def tangent_angle_rows(knots: np.ndarray, degree: int, control_points: np.ndarra
 
 
 def scale_along_splines_oracle(H_c: np.ndarray, cols: np.ndarray, group: np.ndarray, weights: dict[int, float],
-                        control_indices: dict[int, tuple[np.ndarray, np.ndarray]]) -> None:
-    """The oracle of :func:`bend_kernels.scale_along_splines`, in numpy: scale, in place, the part of each spline's Jacobian rows along the spline's mean
-    tangent (over its rows) by its weight; one pass over all rows.
+                               control_indices: dict[int, tuple[np.ndarray, np.ndarray]]) -> None:
+    """The oracle of :func:`bend_kernels.scale_along_splines`, in numpy: scale, in place,
+    the part of each spline's Jacobian rows along the spline's mean tangent (over its rows)
+    by its weight; one pass over all rows.
 
     Args:
         H_c: (m, c) the stacked Jacobian on ``cols`` (c,), the pose's x, y first; for every
@@ -118,13 +119,17 @@ def test_the_bends_of_a_table_of_curves_match_the_one_curve_form():
     in their domains, the ends included: each curve's Δθ and its gradient over its own
     control points as the one-curve oracle gives them."""
     rng = np.random.default_rng(3)
-    curves = [_curve(rng, 7, 3), _curve(rng, 4, 2), _curve(rng, 9, 3)]
+    # the last curve runs towards −x, its tangent from about +174° to −174°: a bend of +12°
+    # whose raw difference of angles is −348°
+    leftwards = BSplineCurve(np.array([[0.0, -0.1], [-1.0, 0.0], [-2.0, 0.03], [-3.0, 0.0], [-4.0, -0.1]]),
+                             clamped_knots_with_spans(2.0, 2, 3), 3)
+    curves = [_curve(rng, 7, 3), _curve(rng, 4, 2), _curve(rng, 9, 3), leftwards]
     table = curve_table([c.knots for c in curves], [c.degree for c in curves])
     stacked = np.vstack([c.control_points for c in curves])
-    which = np.array([0, 1, 2, 0])
+    which = np.array([0, 1, 2, 0, 3])
     lo, hi = table.lo[which], table.hi[which]
-    t_first = np.array([lo[0], lo[1] + 0.3, lo[2] + 1.1, lo[3] + 2.5])
-    t_last = np.array([hi[0], hi[1] - 0.1, hi[2], lo[3] + 2.5 + 1e-3])
+    t_first = np.array([lo[0], lo[1] + 0.3, lo[2] + 1.1, lo[3] + 2.5, lo[4]])
+    t_last = np.array([hi[0], hi[1] - 0.1, hi[2], lo[3] + 2.5 + 1e-3, hi[4]])
     bend, rows, grad = spline_bends(table, stacked, which, t_first, t_last)
     for i, c in enumerate(which):
         curve = curves[c]
@@ -139,6 +144,7 @@ def test_the_bends_of_a_table_of_curves_match_the_one_curve_form():
         outside = np.ones(stacked.shape[0], dtype=bool)
         outside[start:start + n] = False
         assert not full[outside].any()                  # nothing on another curve's control points
+    assert 0.15 < bend[4] < 0.3                         # wrapped: +12°-ish, not −348°
 
 
 def test_the_weight_is_zero_within_the_noise_continuous_and_tends_to_one():
@@ -169,7 +175,8 @@ def _rows(rng, m=12):
     return H, cols, np.arange(3, 8), np.arange(8, 13)
 
 
-def test_scaling_removes_the_along_spline_part_and_keeps_the_gauge():
+@pytest.mark.parametrize("compiled", [True, False])
+def test_scaling_removes_the_along_spline_part_and_keeps_the_gauge(compiled):
     rng = np.random.default_rng(1)
     H, cols, idx_x, idx_y = _rows(rng)
     group = np.zeros(H.shape[0], dtype=np.intp)
@@ -179,7 +186,11 @@ def test_scaling_removes_the_along_spline_part_and_keeps_the_gauge():
 
     def scaled(w):
         out = H.copy()
-        scale_along_splines_oracle(out, cols, group, {0: w}, spline)
+        if compiled:
+            bend_kernels.scale_along_splines(out, cols, group, np.array([0]), np.array([w]), idx_x, idx_y,
+                                             np.array([0, idx_x.size]))
+        else:
+            scale_along_splines_oracle(out, cols, group, {0: w}, spline)
         return out
 
     out = scaled(0.0)
@@ -251,11 +262,79 @@ def test_the_compiled_bookkeeping_matches_numpy():
 
     index = rng.integers(3, 30, (4, 16))
     grad = rng.normal(size=(4, 16))
-    union, A = bend_kernels.bend_gradient_rows(index, grad)
-    np.testing.assert_array_equal(union, np.unique(index))
-    dense = np.zeros((4, 30))
+    union = np.union1d(np.unique(index), [0, 1, 31])       # columns no gradient touches too
+    A = bend_kernels.bend_gradient_rows(union, index, grad)
+    dense = np.zeros((4, 32))
     np.add.at(dense, (np.repeat(np.arange(4), 16), index.ravel()), grad.ravel())
     np.testing.assert_allclose(A, dense[:, union], rtol=1e-14, atol=1e-15)
+
+
+def bend_weights_oracle(beams, lin, curves, x, variances_of) -> dict[int, float]:
+    """The oracle of ``RangeModel.bend_weights``: one spline at a time, its own knots and
+    control points, {curve: w} for w < 1."""
+    group = beams.curve[lin.beam]
+    found = []
+    for c in np.unique(group):
+        feature = curves.features[c]
+        rows = group == c
+        if np.count_nonzero(rows) < 2 or not feature.in_state:
+            continue
+        t = lin.hit_t[rows]
+        angle, grad = tangent_angle_rows(feature.knots, feature.degree, feature.control_points(x),
+                                         np.array([t.min(), t.max()]))
+        bend = float(np.angle(np.exp(1j * (angle[1] - angle[0]))))
+        found.append((int(c), bend, np.concatenate([feature.idx_x, feature.idx_y]), grad[1] - grad[0]))
+    if not found:
+        return {}
+    union = np.unique(np.concatenate([f[2] for f in found]))
+    A = np.zeros((len(found), union.shape[0]))
+    for i, (_, _, idx, grad) in enumerate(found):
+        A[i, np.searchsorted(union, idx)] = grad
+    variances = variances_of(union, A)
+    weights = {c: float(bend_weights(np.array([b]), np.array([v]))[0]) for (c, b, _, _), v in zip(found, variances)}
+    return {c: w for c, w in weights.items() if w < 1.0}
+
+
+@pytest.mark.parametrize("estimator", ["invariant", "oc-ekf"])
+def test_the_filter_weighs_and_scales_as_the_oracles_do(monkeypatch, estimator):
+    """On the filter's own inputs (a simulated run of the rounded room, every linearisation):
+    the compiled weights and scaled rows are the one-spline numpy forms' to rounding."""
+    from bsslam.slam.measurement import RangeModel
+
+    weigh, limit = RangeModel.bend_weights, RangeModel.limit_along_splines
+    seen = {"weighed": 0, "scaled": 0}
+
+    def checked_weights(self, beams, lin, curves, x, variances_of):
+        out = weigh(self, beams, lin, curves, x, variances_of)
+        expected = bend_weights_oracle(beams, lin, curves, x, variances_of)
+        got = {} if out is None else {int(c): float(w) for c, w in zip(*out)}
+        assert got.keys() == expected.keys()
+        for c in got:
+            assert got[c] == pytest.approx(expected[c], abs=1e-9)
+        seen["weighed"] += len(got)
+        return out
+
+    def checked_rows(self, beams, lin, curves, weights):
+        out = limit(self, beams, lin, curves, weights)
+        expected = lin.H_c.copy()
+        if weights is not None:
+            scale_along_splines_oracle(expected, lin.cols, beams.curve[lin.beam],
+                                       {int(c): float(w) for c, w in zip(*weights)},
+                                       {int(c): (curves.features[int(c)].idx_x, curves.features[int(c)].idx_y)
+                                        for c in weights[0]})
+            seen["scaled"] += 1
+        np.testing.assert_allclose(out.H_c, expected, rtol=1e-10, atol=1e-12)
+        return out
+
+    monkeypatch.setattr(RangeModel, "bend_weights", checked_weights)
+    monkeypatch.setattr(RangeModel, "limit_along_splines", checked_rows)
+    sim = SimConfig()
+    config = simulation_config(SLAMConfig(estimator=estimator), sim).replace(backend="ekf")
+    config = config.replace(observation=dataclasses.replace(config.observation, significant_bends_only=True))
+    from bsslam.sim import get_world
+    data = simulate(get_world("rounded-room"), sim, seed=1, steps=40)
+    run_dataset(data, config, point_stride=0)
+    assert seen["weighed"] > 20 and seen["scaled"] > 10
 
 
 def _corridor_nees(bends: bool, seeds: int = 8, steps: int = 50) -> float:

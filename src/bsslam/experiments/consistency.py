@@ -156,7 +156,8 @@ def consistency_experiment(variant: str, runs: int = 50, seed: int = 0, world: s
     """Monte Carlo NEES of one variant (seeds ``seed … seed+runs−1``); the runs go where
     ``workers``/``scheduler`` say (see :func:`bsslam.parallel.run_all`: by default a
     local cluster over every core), with the same results wherever they run.
-    ``base``: the filter's configuration the variant starts from, e.g.
+    ``base``: the filter's configuration the variant starts from (the library's defaults
+    when None; ``paper_filter(SLAMConfig())`` for the paper's filter and update), e.g.
     ``SLAMConfig(estimator="oc-ekf")`` for the observability-constrained EKF."""
     sim = sim or SimConfig()
     # the paper's experiment: one global EKF (the submaps' frozen maps would hide its NEES)

@@ -47,8 +47,9 @@ def heading_gain_experiment(sigmas_rad=DEFAULT_SIGMAS_RAD, runs: int = 50, updat
     """Mean estimated σ_φ (rad) after each update (index 0 = after the first update, i.e.
     the second scan; the first builds the map) per σ₀. The ``runs × len(sigmas_rad)`` runs
     go where ``workers``/``scheduler`` say (see :func:`bsslam.parallel.run_all`). ``base``: the
-    filter's configuration before it is matched to the simulator (e.g.
-    ``SLAMConfig(estimator="oc-ekf")``)."""
+    filter's configuration before it is matched to the simulator (the library's defaults
+    when None; ``bsslam experiment heading-gain`` passes the paper's update,
+    :func:`bsslam.experiments.consistency.paper_filter`, with the chosen estimator)."""
     sim = SimConfig()
     config = simulation_config(base or SLAMConfig(), sim)
     sigmas = [float(s0) for s0 in sigmas_rad]

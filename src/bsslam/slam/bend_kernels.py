@@ -190,27 +190,17 @@ def bend_groups(group, hit_t, first_state_row):
 
 
 @jit
-def bend_gradient_rows(state_index, grad):
-    """The bends' gradients as rows over the state indices they touch: ``(union (k,),
-    A (g, k))`` with A[i, union == s] the sum of ``grad[i]``'s entries at state index s.
+def bend_gradient_rows(union, state_index, grad):
+    """The bends' gradients as rows over the state indices ``union`` (k,) (sorted, holding
+    every index of ``state_index``): A (g, k), A[i, union == s] the sum of ``grad[i]``'s
+    entries at state index s.
 
     Args:
         state_index: (g, r) the state index of each gradient entry; grad: (g, r) its value.
     """
     g, r = state_index.shape
-    flat = np.sort(state_index.ravel())
-    k = 0
-    for j in range(flat.shape[0]):
-        if j == 0 or flat[j] != flat[j - 1]:
-            k += 1
-    union = np.empty(k, dtype=flat.dtype)
-    k = 0
-    for j in range(flat.shape[0]):
-        if j == 0 or flat[j] != flat[j - 1]:
-            union[k] = flat[j]
-            k += 1
-    A = np.zeros((g, k))
+    A = np.zeros((g, union.shape[0]))
     for i in range(g):
         for j in range(r):
             A[i, np.searchsorted(union, state_index[i, j])] += grad[i, j]
-    return union, A
+    return A

@@ -241,7 +241,10 @@ class RangeModel:
             return None
         bend, rows, grad = spline_bends(table, curves.control_points(x), labels, t_first, t_last)
         g = labels.shape[0]
-        union, A = bend_kernels.bend_gradient_rows(curves.state_rows[rows].reshape(g, -1), grad.reshape(g, -1))
+        # every control point of the splines, not only those the two tangents move: the
+        # OC-EKF's constraint on a row depends on the columns it is given
+        union = curves.state_indices(labels, x.shape[0])
+        A = bend_kernels.bend_gradient_rows(union, curves.state_rows[rows].reshape(g, -1), grad.reshape(g, -1))
         variances = variances_of(union, A)
         weights = bend_weights(bend, variances)
         scaled = weights < 1.0
