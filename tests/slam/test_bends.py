@@ -187,8 +187,8 @@ def test_scaling_removes_the_along_spline_part_and_keeps_the_gauge(compiled):
     def scaled(w):
         out = H.copy()
         if compiled:
-            bend_kernels.scale_along_splines(out, cols, group, np.array([0]), np.array([w]), idx_x, idx_y,
-                                             np.array([0, idx_x.size]))
+            bend_kernels.scale_along_splines(out, cols, group, np.array([0]), np.array([w]),
+                                             np.column_stack([idx_x, idx_y]), np.array([0, idx_x.size]))
         else:
             scale_along_splines_oracle(out, cols, group, {0: w}, spline)
         return out
@@ -236,9 +236,10 @@ def test_the_compiled_scaling_matches_the_numpy_oracle():
         expected = H.copy()
         scale_along_splines_oracle(expected, cols, group, {0: w0, 2: w2}, {0: (idx_x, idx_y), 2: spline_2})
         out = H.copy()
-        bend_kernels.scale_along_splines(out, cols, group, np.array([0, 2]), np.array([w0, w2]),
-                                         np.r_[idx_x, spline_2[0]], np.r_[idx_y, spline_2[1]],
-                                         np.array([0, idx_x.size, idx_x.size + 3]))
+        # the curves' state rows as MapCurves holds them: curve 0, an empty curve 1, curve 2
+        state_rows = np.column_stack([np.r_[idx_x, spline_2[0]], np.r_[idx_y, spline_2[1]]])
+        bend_kernels.scale_along_splines(out, cols, group, np.array([0, 2]), np.array([w0, w2]), state_rows,
+                                         np.array([0, idx_x.size, idx_x.size, idx_x.size + 3]))
         np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-14)
         assert not np.array_equal(out, H)
 

@@ -76,7 +76,7 @@ def tangent_turns(power_basis, window, real, piece, u, control_points):
 
 
 @jit
-def scale_along_splines(H_c, cols, group, labels, weights, idx_x, idx_y, offsets):
+def scale_along_splines(H_c, cols, group, labels, weights, state_rows, cp_start):
     """Scale, in place, the part of each weighted spline's Jacobian rows along the spline's
     mean tangent (over its rows) by its weight (:mod:`bsslam.slam.bends`).
 
@@ -89,8 +89,8 @@ def scale_along_splines(H_c, cols, group, labels, weights, idx_x, idx_y, offsets
             first).
         group: (m,) each row's spline (its curve index).
         labels: (L,) the curves to scale; weights: (L,) their weights w ∈ [0, 1).
-        idx_x, idx_y: the state indices of the control points' x and y of ``labels[l]`` at
-            ``offsets[l] … offsets[l+1]−1``; offsets (L+1,).
+        state_rows: (N, 2) the state indices of every curve's control points' x and y, curve
+            c at rows ``cp_start[c] … cp_start[c+1]−1`` (:class:`~bsslam.slam.map_curves.MapCurves`).
     """
     m = H_c.shape[0]
     n_labels = labels.shape[0]
@@ -116,8 +116,9 @@ def scale_along_splines(H_c, cols, group, labels, weights, idx_x, idx_y, offsets
     size = 0
     for k in range(cols.shape[0]):
         size = max(size, cols[k] + 1)
-    for k in range(idx_x.shape[0]):
-        size = max(size, idx_x[k] + 1, idx_y[k] + 1)
+    for s in range(n_labels):
+        for k in range(cp_start[labels[s]], cp_start[labels[s] + 1]):
+            size = max(size, state_rows[k, 0] + 1, state_rows[k, 1] + 1)
     position = np.full(size, -1, dtype=np.intp)
     for k in range(cols.shape[0]):
         position[cols[k]] = k
@@ -134,9 +135,9 @@ def scale_along_splines(H_c, cols, group, labels, weights, idx_x, idx_y, offsets
         shift_x = removed * tx
         shift_y = removed * ty
         # β of the row's control points from H = −β g, before g changes
-        for k in range(offsets[s], offsets[s + 1]):
-            px = position[idx_x[k]]
-            py = position[idx_y[k]]
+        for k in range(cp_start[labels[s]], cp_start[labels[s] + 1]):
+            px = position[state_rows[k, 0]]
+            py = position[state_rows[k, 1]]
             if px < 0 or py < 0:
                 continue
             beta = -(H_c[i, px] * gx + H_c[i, py] * gy) / g2

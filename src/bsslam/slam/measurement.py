@@ -258,11 +258,7 @@ class RangeModel:
         if weights is None:
             return lin
         labels, w = weights
-        features = [curves.features[int(c)] for c in labels]
-        offsets = np.zeros(len(features) + 1, dtype=np.intp)
-        offsets[1:] = np.cumsum([f.idx_x.shape[0] for f in features])
         H_c = lin.H_c.copy()
-        bend_kernels.scale_along_splines(H_c, lin.cols, beams.curve[lin.beam], labels, w,
-                                         np.concatenate([f.idx_x for f in features]),
-                                         np.concatenate([f.idx_y for f in features]), offsets)
+        bend_kernels.scale_along_splines(H_c, lin.cols, beams.curve[lin.beam], labels, w, curves.state_rows,
+                                         curves.table.cp_start)
         return dataclasses.replace(lin, H_c=H_c)
