@@ -954,13 +954,13 @@ def heading_gain(runs: int = typer.Option(50, help="Monte Carlo runs per initial
 
     from bsslam.config import SLAMConfig
 
+    base = paper_filter(SLAMConfig()).replace(estimator=estimator.value)
     settings = {"experiment": "heading-gain", "runs": runs, "updates": updates, "seed": seed,
-                "estimator": estimator.value, "significant_bends": False}   # the paper's update
+                "estimator": base.estimator, "significant_bends": base.observation.significant_bends_only}
     with experiment_folder(out, settings) as run_dir:
         with progress_bar("heading gain", runs * len(DEFAULT_SIGMAS_RAD), "runs") as update:
             res = heading_gain_experiment(runs=runs, updates=updates, seed=seed, workers=workers,
-                                          scheduler=scheduler, progress=update,
-                                          base=paper_filter(SLAMConfig()).replace(estimator=estimator.value))
+                                          scheduler=scheduler, progress=update, base=base)
         write_heading_gain(res, run_dir)
     table = Table("σ₀ (rad)", "σ_φ after 1 update", f"σ_φ after {updates}", title="Heading information gain")
     for s0, sig in res.items():
