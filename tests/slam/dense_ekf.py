@@ -116,6 +116,9 @@ class DenseEKF:
     def diagonal(self, rows):
         return self.P[rows, rows].copy()
 
+    def marginal(self, idx):
+        return self.P[np.ix_(idx, idx)].copy()
+
     def window(self, rows=None):
         return DenseWindow(self.P.copy(), rows)
 

@@ -97,6 +97,10 @@ class Estimator(Protocol):
     def diagonal(self, rows: np.ndarray) -> np.ndarray:
         """(r,) P[rows, rows]."""
 
+    def marginal(self, idx: np.ndarray) -> np.ndarray:
+        """(k, k) P[idx][:, idx] as a pure read: the estimator's later arithmetic stays bit
+        for bit what it would have been (a map read in the middle of a run)."""
+
     def window(self, rows: np.ndarray | None = None) -> CovarianceWindow:
         """The prior on working ``rows`` (sorted, the pose first; all when None)."""
 
@@ -193,6 +197,9 @@ class CompressedEKF:
 
     def diagonal(self, rows: np.ndarray) -> np.ndarray:
         return self.joint.diagonal(rows)
+
+    def marginal(self, idx: np.ndarray) -> np.ndarray:
+        return self.joint.block(idx, idx, keep=False)
 
     def window(self, rows: np.ndarray | None = None) -> CovarianceColumns:
         # P[rows, cols] read without folding the pending update

@@ -161,13 +161,15 @@ class SplineSLAM:
 
     @property
     def map(self) -> list[MapSpline]:
-        """The map splines with their covariance blocks."""
-        x, P = self.state.x, self.state.P
+        """The map splines with their covariance blocks. A pure read: it leaves the
+        estimator bit for bit as it was (a fold or a cached row would change the later
+        arithmetic by rounding, and a read in the middle of a run must not change the run)."""
+        x = self.state.x
         out = []
         for f in self.features.values():
             if f.in_state:
                 idx = f.state_indices
-                cov = P[np.ix_(idx, idx)].copy()
+                cov = self.state.marginal(idx)
             else:
                 cov = np.zeros((2 * f.knots.size - 2 * f.degree - 2,) * 2)
             out.append(MapSpline(f.id, f.curve(x), cov))

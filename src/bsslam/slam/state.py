@@ -202,11 +202,20 @@ class JointState:
         self._pending = False   # base is P: a fold would change nothing
         self._forget_pending_rows()
 
-    def _pending_rows(self, rows: np.ndarray) -> np.ndarray:
-        """(r, a) B[rows] G: the pending term's rows are this times Bᵀ (a new array)."""
+    def _pending_rows(self, rows: np.ndarray, keep: bool = True) -> np.ndarray:
+        """(r, a) B[rows] G: the pending term's rows are this times Bᵀ (a new array). The
+        rows are kept for later calls, unless ``keep`` is False: a read outside the filter's
+        own steps must leave no trace, since a row's rounding depends on the rows computed
+        with it."""
         rows = np.asarray(rows, dtype=np.intp)
         slot = self._bg_slot[rows]
         missing = rows[slot < 0]
+        if missing.size and not keep:
+            out = np.empty((rows.shape[0], self._a))
+            held = slot >= 0
+            out[held] = self._bg[slot[held], : self._a]
+            out[~held] = self._B[missing, : self._a] @ self._G[: self._a, : self._a]
+            return out
         if missing.size:
             new = np.unique(missing)
             start, end = self._bg_count, self._bg_count + new.shape[0]
@@ -312,8 +321,9 @@ class JointState:
         out[self._E[:e]] = self._K[:a, :e].T @ (self._B[lc, :a].T @ vl) + self._PE[:e, pos[eager]] @ v[eager]
         return out
 
-    def block(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """(r, c) ``P[np.ix_(rows, cols)]`` (a new array); indices of the live state."""
+    def block(self, rows: np.ndarray, cols: np.ndarray, keep: bool = True) -> np.ndarray:
+        """(r, c) ``P[np.ix_(rows, cols)]`` (a new array); indices of the live state. With
+        ``keep`` False a pure read (see :meth:`_pending_rows`)."""
         rows = np.asarray(rows, dtype=np.intp)
         cols = np.asarray(cols, dtype=np.intp)
         pr, pc = self._epos[rows], self._epos[cols]
@@ -323,7 +333,7 @@ class JointState:
             out = (self._B[cols, :a] @ self._K[:a, pr]).T
         else:
             out = take_block(self._P, rows, cols)
-            out -= self._pending_rows(rows) @ self._B[cols, :a].T
+            out -= self._pending_rows(rows, keep) @ self._B[cols, :a].T
             if ec.any():
                 out[:, ec] = self._B[rows, :a] @ self._K[:a, pc[ec]]
             if er.any():
