@@ -795,6 +795,17 @@ class SubmapConfig:
         loop_max_window_rad:
         loop_max_candidates: old submaps matched against each newly frozen one, nearest
             first (bounds the time per submap).
+        online_match_m: the growing submap is matched against the old ones it has not
+            matched yet (as a frozen one is, up to ``loop_max_candidates`` of them) every
+            time the robot has travelled this far in it (m), and the current base pose and
+            its covariance are the graph's conditioned on the matches the graph vouches for
+            (:meth:`~bsslam.submaps.pose_graph.PoseGraph.conditioned`). They do not enter
+            the graph: the full submap's match replaces them when it is frozen. So the
+            online pose is tied to the old map as soon as the robot is back in it, not a
+            whole submap later; the final trajectory and map do not change. 0 (default):
+            only frozen submaps are matched. At 5 m the Intel logs' online pose is about
+            20 % closer to the reference, the other shared logs' within 6 %, for 8–36 % more
+            time (docs/real_logs.md, "The growing submap matched").
         loop_sweep: at the end of a run, match each frozen submap again against up to
             ``loop_max_candidates`` older ones whose areas overlap it where the final graph
             puts them and that no loop closure ties to it yet, with the final graph's
@@ -921,6 +932,7 @@ class SubmapConfig:
     loop_min_window_rad: float = math.radians(20.0)
     loop_max_window_rad: float = math.pi
     loop_max_candidates: int = 4
+    online_match_m: float = 0.0
     loop_sweep: bool = True
     loop_min_inlier_fraction: float = 0.8
     loop_min_overlap_m: float = 8.0
@@ -962,6 +974,8 @@ class SubmapConfig:
                "submaps.loop_min_window_rad ≤ loop_max_window_rad must be in (0, π]")
         _check(isinstance(self.loop_max_candidates, int) and 0 <= self.loop_max_candidates <= 100,
                "submaps.loop_max_candidates must be an integer in [0, 100] (0: no loop closure)")
+        _check(math.isfinite(self.online_match_m) and self.online_match_m >= 0,
+               f"submaps.online_match_m must be finite and ≥ 0 m (0: off), got {self.online_match_m!r}")
         _check(isinstance(self.loop_sweep, bool), f"submaps.loop_sweep must be true or false, got {self.loop_sweep!r}")
         _check(0 < self.loop_min_inlier_fraction <= 1, "submaps.loop_min_inlier_fraction must be in (0, 1]")
         _check(self.loop_min_overlap_m >= 0, "submaps.loop_min_overlap_m must be ≥ 0")

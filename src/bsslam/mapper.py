@@ -692,6 +692,8 @@ def _add_submap_stats(totals: dict[str, int], slam: SubmapSLAM) -> None:
     totals["loop_closures"] = stats.loop_closures
     totals["loop_sweep_candidates"] = stats.sweep_candidates
     totals["loop_sweep_closures"] = stats.sweep_closures
+    totals["online_match_candidates"] = stats.online_candidates
+    totals["online_matches"] = stats.online_matches
     totals["loop_closures_downweighted"] = int(np.count_nonzero(slam.loop_weights() < 0.5))
     for reason, count in stats.loop_rejections.items():
         totals[f"loop_rejected_{reason}"] = count

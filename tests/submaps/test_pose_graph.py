@@ -297,6 +297,41 @@ def test_marginals_match_dense_laplace_covariance(seed):
     assert np.trace(cov_26) < 0.9 * np.trace(graph.covariance(2) + graph.covariance(6))
 
 
+@pytest.mark.parametrize("seed", [0, 4])
+def test_conditioning_on_loops_matches_the_graph_that_holds_them(seed):
+    """``conditioned`` gives the node's pose and marginal as the graph with those loop
+    closures in it would (against the dense oracle of the whole problem: a single linearised
+    update, so to the correction's second order), and leaves the graph as it was."""
+    problem = make_problem(seed, n=7, loops=((0, 4), (1, 6), (2, 6)))
+    x = solve_oracle(problem, WIDE)
+    sigma = coordinate_covariance(x, problem)
+    without = {key: problem[key] for key in problem}
+    without["loops"], without["loops_cov"] = problem["loops"][:1], problem["loops_cov"][:1]
+    graph = build(without, WIDE)
+    before_poses, before_cov = graph.poses(), graph.covariance(6)
+    loops = [(i, z, cov) for (i, _, z, _), cov in zip(problem["loops"][1:], problem["loops_cov"][1:])]
+    pose, cov = graph.conditioned(6, loops)
+    expected = x.reshape(-1, 3)[6]
+    moved = np.linalg.norm(before_poses[6][:2] - expected[:2])
+    assert moved > 0.01                         # the loops move the node …
+    np.testing.assert_allclose(pose[:2], expected[:2], atol=0.05 * moved)   # … where the oracle puts it
+    assert abs(angle_diff(pose[2], expected[2])) < 1e-3
+    # linearised where the graph stood, not at the optimum: a few per cent of the largest entry
+    assert_covariance_close(cov, sigma[18:21, 18:21], 0.05)
+    assert np.trace(cov) < 0.8 * np.trace(before_cov)
+    # the graph did not take the loops
+    np.testing.assert_array_equal(graph.poses(), before_poses)
+    np.testing.assert_array_equal(graph.covariance(6), before_cov)
+    assert graph.loop_count == 1
+    # no loops: the graph's own estimate; a loop from the node to itself is refused
+    np.testing.assert_array_equal(graph.conditioned(6, [])[0], before_poses[6])
+    with pytest.raises(ValueError):
+        graph.conditioned(6, [(6, loops[0][1], loops[0][2])])
+    # the query is replayed on unpickling like the other marginal queries
+    back = pickle.loads(pickle.dumps(graph))
+    np.testing.assert_array_equal(back.covariance(5), graph.covariance(5))
+
+
 # --- 4. incremental ------------------------------------------------------------------------
 
 

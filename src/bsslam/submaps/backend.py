@@ -118,13 +118,17 @@ class LoopRecord:
 class SubmapStats:
     """Counters of the global layer (added to a run's totals): ``loop_closures`` counts
     the end-of-run sweep's (``sweep_closures``) too; ``loop_candidates`` and
-    ``loop_rejections`` are the online matching's."""
+    ``loop_rejections`` are the frozen submaps' matching's; ``online_candidates`` and
+    ``online_matches`` the growing submap's (``submaps.online_match_m``), which condition
+    the current base and never enter the graph."""
 
     submaps: int = 1
     loop_candidates: int = 0
     loop_closures: int = 0
     sweep_candidates: int = 0
     sweep_closures: int = 0
+    online_candidates: int = 0
+    online_matches: int = 0
     loop_rejections: dict[str, int] = field(default_factory=dict)
 
     def reject(self, reason: str, count: int = 1) -> None:
@@ -170,6 +174,10 @@ class SubmapSLAM:
         self._base_cov = self.graph.covariance(0)      # the current base's marginal
         self._local = self._new_local()
         self._distance = 0.0
+        # the growing submap's verified matches against old submaps: reference →
+        # (relative, covariance), conditioning the current base (online_match_m)
+        self._online: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._matched_at = 0.0      # distance in the current submap at its last matching
         self.step_submap = 0     # the submap the last step's scan was localised in
         self.steps = 0
 
@@ -244,6 +252,8 @@ class SubmapSLAM:
             self._freeze()
             # the new submap starts at this scan: its splines seed the new map
             self._local.step(None, scan, laser_offset, features=report.features)
+        elif cfg.online_match_m > 0 and self._distance - self._matched_at >= cfg.online_match_m:
+            self._match_growing()
         self._check_memory()
         return report
 
@@ -264,6 +274,8 @@ class SubmapSLAM:
         with ``previous``, the splines it holds within ``submaps.carry_over_m`` of the
         robot come along (see :func:`carry_over`)."""
         self._distance = 0.0
+        self._matched_at = 0.0
+        self._online = {}
         local = SplineSLAM(self.config, initial_pose=np.zeros(3), initial_covariance=np.zeros((3, 3)))
         if previous is not None:
             cfg = self.config.submaps
@@ -292,30 +304,77 @@ class SubmapSLAM:
         """Match frozen submap ``k`` against the old submaps it may overlap (not its
         neighbour, tied to it by the odometry constraint); verified matches go to
         :meth:`_admit`. True when a loop closure was added to the graph."""
-        cfg = self.config.submaps
         query = self.frozen[k].shape
-        if cfg.loop_max_candidates == 0 or k < 2 or query.points.shape[0] == 0:
+        if self.config.submaps.loop_max_candidates == 0 or k < 2 or query.points.shape[0] == 0:
             return False
-        gap = _gaps(*self._areas(), k)
-        order = np.argsort(gap, kind="stable")
-        found: list[tuple[LoopRecord, float, bool]] = []
-        tried = 0
-        for j in order:
-            if tried == cfg.loop_max_candidates or gap[j] > cfg.loop_max_window_m:
+        verified, rejected = self._match_old(query, k, *self._areas())
+        self.stats.loop_candidates += len(verified) + len(rejected)
+        for reason in rejected:
+            self.stats.reject(reason)
+        found = [(_record(j, k, match), window_m, surprising) for j, match, window_m, surprising in verified]
+        return self._admit(k, found)
+
+    def _match_old(self, query: SubmapShape, k: int, centres: np.ndarray, radii: np.ndarray,
+                   known: frozenset[int] = frozenset()) -> tuple[list[tuple[int, LoopMatch, float, bool]], list[str]]:
+        """Match ``query``, the shape of submap ``k`` (node ``k`` optimised), against up to
+        ``loop_max_candidates`` of submaps 0 … k − 2 whose areas (``centres`` (≥ k + 1, 2),
+        ``radii``, map frame, m; entry k the query's) may overlap it within the search
+        window the graph sets, nearest first; those in ``known`` (matched already) count
+        as candidates but are not matched again. Returns the verified matches as
+        (reference, match, window m, surprising: the graph does not vouch for it) and the
+        reasons the other candidates tried were rejected."""
+        cfg = self.config.submaps
+        found, rejected = [], []
+        if cfg.loop_max_candidates == 0 or k < 2 or query.points.shape[0] == 0:
+            return found, rejected
+        gap = _gaps(centres, radii, k)
+        skipped = 0
+        for j in np.argsort(gap, kind="stable"):
+            if len(found) + len(rejected) + skipped == cfg.loop_max_candidates or gap[j] > cfg.loop_max_window_m:
                 break
             guess, cov = self.graph.relative(int(j), k)
             window_m, window_rad = search_window(cov, cfg)
             if gap[j] > window_m:     # cannot overlap anywhere in the search window
                 continue
-            tried += 1
-            self.stats.loop_candidates += 1
+            if int(j) in known:
+                skipped += 1
+                continue
             match = match_submaps(self.frozen[j].shape, query, guess, cov, window_m, window_rad, cfg)
             if not match.ok:
-                self.stats.reject(match.reason)
+                rejected.append(match.reason)
                 continue
             surprising = cfg.loop_support_submaps > 0 and not vouched_by_graph(match, cov, window_m, window_rad, cfg)
-            found.append((_record(int(j), k, match), window_m, surprising))
-        return self._admit(k, found)
+            found.append((int(j), match, window_m, surprising))
+        return found, rejected
+
+    def _match_growing(self) -> None:
+        """Match the growing submap against the old ones it has not matched yet and
+        condition the current base on its match against each that the graph vouches for
+        (``online_match_m``).
+        The matches never enter the graph (the frozen submap's own replace them) and the
+        graph's vote is not held: a surprising match is left out here."""
+        self._matched_at = self._distance
+        c = self.submap_index
+        if c < 2:
+            return
+        query = matching_shape(self._local.map, self.config.submaps)
+        centres, radii = self._areas()
+        base = self.graph.pose(c)
+        centres = np.vstack([centres, compose(base, np.r_[query.center, 0.0])[:2]])
+        radii = np.r_[radii, query.radius]
+        # a wall matched once ties the base already; a later match of the same pair, on more
+        # wall, would tighten it a little at the cost of a whole search
+        found, rejected = self._match_old(query, c, centres, radii, frozenset(self._online))
+        self.stats.online_candidates += len(found) + len(rejected)
+        vouched = [(j, m, w) for j, m, w, surprising in found if not surprising]
+        if not vouched:
+            return
+        self.stats.online_matches += len(vouched)
+        for j, match, window_m in vouched:
+            self._online[j] = (match.relative, _proper(match.covariance, window_m))
+        pose, cov = self.graph.conditioned(c, [(j, r, q) for j, (r, q) in sorted(self._online.items())])
+        self._bases[c] = pose
+        self._base_cov = cov
 
     def sweep_loops(self) -> int:
         """Match each frozen submap again against the older ones whose areas overlap it

@@ -534,6 +534,54 @@ class PoseGraph:
         H = np.hstack([-r.inverse().AdjointMap(), np.eye(3)])
         return rel, _from_tangent(H @ S @ H.T, rel[2])
 
+    def conditioned(self, node: int, loops) -> tuple[np.ndarray, np.ndarray]:
+        """Node ``node``'s pose (3,) and covariance (3, 3, bsslam convention) as the graph
+        would give them with ``loops`` added as plain Gaussian loop factors, without adding
+        them: one Kalman update of the joint marginal of the nodes involved (exact for the
+        linearised graph, as its other nodes are summed out).
+
+        For measurements that will enter the graph later in another form (a growing
+        submap's matches, which its full match replaces when it is frozen): the graph
+        stays as it is.
+
+        Args:
+            node: an optimised node.
+            loops: [(i, relative, covariance)]: the measured ``se2.between(pose_i,
+                pose_node)`` (3,) with its covariance (3, 3, bsslam convention), i an
+                optimised node other than ``node``.
+        """
+        node = self._check_optimized(node, "node")
+        loops = [(self._check_optimized(i, "i"), _check_pose(r, "relative"), _check_covariance(c, "covariance"))
+                 for i, r, c in loops]
+        if any(i == node for i, _, _ in loops):
+            raise ValueError("a loop closure needs two distinct nodes")
+        pc = self._values.atPose2(node)
+        if not loops:
+            return self._poses[node].copy(), self.covariance(node)
+        self._calls.append(("conditioned", node, [(i, r.copy(), c.copy()) for i, r, c in loops]))
+        keys = sorted({i for i, _, _ in loops}) + [node]
+        block = {k: 3 * n for n, k in enumerate(keys)}
+        joint = self._isam.jointMarginalCovariance(keys)
+        prior = np.block([[joint.at(a, b) for b in keys] for a in keys])
+        H = np.zeros((3 * len(loops), 3 * len(keys)))
+        innovation = np.empty(3 * len(loops))
+        noise = np.zeros((3 * len(loops), 3 * len(loops)))
+        for m, (i, rel, cov) in enumerate(loops):
+            r = self._values.atPose2(i).between(pc)
+            rows = slice(3 * m, 3 * m + 3)
+            # as in relative(): (pi·Exp(a))⁻¹ (pc·Exp(b)) ≈ r·Exp(b − Ad(r⁻¹) a)
+            H[rows, block[i]:block[i] + 3] = -r.inverse().AdjointMap()
+            H[rows, block[node]:block[node] + 3] = np.eye(3)
+            innovation[rows] = gtsam.Pose2.Logmap(r.between(gtsam.Pose2(*rel)))
+            noise[rows, rows] = _to_tangent(cov, rel[2])
+        S = H @ prior @ H.T + noise
+        gain = np.linalg.solve(S, H @ prior).T
+        step = gain @ innovation
+        posterior = prior - gain @ S @ gain.T
+        pose = pc.compose(gtsam.Pose2.Expmap(step[-3:]))
+        out = np.array([pose.x(), pose.y(), pose.theta()])
+        return out, _from_tangent(posterior[-3:, -3:], out[2])
+
     def solution_chi2(self) -> float:
         """χ² of the solution: the sum of the squared whitened residuals (2 × GTSAM's
         error) of the factors it minimises — the prior, the odometry factors and the loop
