@@ -39,8 +39,8 @@ def test_every_update_annihilates_the_constant_null_space(world, seed):
     """Random scans (two worlds, seeded) with extension and pruning: every Jacobian the
     invariant EKF updates with annihilates N at its mean, the directions its covariance is
     carried along, to rounding; the paper's EKF misses N by the size of its corrections."""
-    inv, reports = run_filter(RecordedInvariant, world, seed, 40)
-    ekf, _ = run_filter(RecordedEKF, world, seed, 40)
+    inv, reports = run_filter(RecordedInvariant, world, seed, 60)
+    ekf, _ = run_filter(RecordedEKF, world, seed, 60)
     assert sum(r.extended_splines for r in reports) > 0 and len(inv.state.jacobians) > 60
     h_inv = max(np.abs(H @ N).max() / (np.abs(H).max() * np.abs(N).max()) for H, N in inv.state.jacobians)
     h_ekf, _ = violations(ekf.state)
