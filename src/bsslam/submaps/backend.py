@@ -350,9 +350,9 @@ class SubmapSLAM:
     def _match_growing(self) -> None:
         """Match the growing submap against the old ones it has not matched yet and
         condition the current base on its match against each that the graph vouches for
-        (``online_match_m``).
-        The matches never enter the graph (the frozen submap's own replace them) and the
-        graph's vote is not held: a surprising match is left out here."""
+        (``online_match_m``; every match when ``loop_support_submaps`` is 0, as the graph
+        would take it). The matches never enter the graph (the frozen submap's own replace
+        them) and the vote between matches is not held: a surprising one is left out."""
         self._matched_at = self._distance
         c = self.submap_index
         if c < 2:
