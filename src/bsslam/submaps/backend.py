@@ -172,12 +172,7 @@ class SubmapSLAM:
         self._max_bytes = int(self.config.max_memory_mb * 2 ** 20)
         self._bases = self.graph.poses()               # (k, 3) optimised base poses
         self._base_cov = self.graph.covariance(0)      # the current base's marginal
-        self._local = self._new_local()
-        self._distance = 0.0
-        # the growing submap's verified matches against old submaps: reference →
-        # (relative, covariance), conditioning the current base (online_match_m)
-        self._online: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        self._matched_at = 0.0      # distance in the current submap at its last matching
+        self._local = self._new_local()     # with the current submap's distance and matches
         self.step_submap = 0     # the submap the last step's scan was localised in
         self.steps = 0
 
@@ -273,9 +268,11 @@ class SubmapSLAM:
         """A filter for a new submap whose frame is the robot's pose, with zero covariance;
         with ``previous``, the splines it holds within ``submaps.carry_over_m`` of the
         robot come along (see :func:`carry_over`)."""
-        self._distance = 0.0
-        self._matched_at = 0.0
-        self._online = {}
+        self._distance = 0.0        # travelled in the current submap (m)
+        self._matched_at = 0.0      # … at its last matching against the old ones (online_match_m)
+        # its verified matches against old submaps: reference → (relative, covariance),
+        # conditioning the current base (online_match_m)
+        self._online: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         local = SplineSLAM(self.config, initial_pose=np.zeros(3), initial_covariance=np.zeros((3, 3)))
         if previous is not None:
             cfg = self.config.submaps
@@ -305,7 +302,7 @@ class SubmapSLAM:
         neighbour, tied to it by the odometry constraint); verified matches go to
         :meth:`_admit`. True when a loop closure was added to the graph."""
         query = self.frozen[k].shape
-        if self.config.submaps.loop_max_candidates == 0 or k < 2 or query.points.shape[0] == 0:
+        if not self._matchable(k) or query.points.shape[0] == 0:
             return False
         verified, rejected = self._match_old(query, k, *self._areas())
         self.stats.loop_candidates += len(verified) + len(rejected)
@@ -313,6 +310,11 @@ class SubmapSLAM:
             self.stats.reject(reason)
         found = [(_record(j, k, match), window_m, surprising) for j, match, window_m, surprising in verified]
         return self._admit(k, found)
+
+    def _matchable(self, k: int) -> bool:
+        """Whether submap ``k`` has old submaps to be matched against: loop closure is on
+        and there is one beyond its neighbour (tied to it by the odometry constraint)."""
+        return self.config.submaps.loop_max_candidates > 0 and k >= 2
 
     def _match_old(self, query: SubmapShape, k: int, centres: np.ndarray, radii: np.ndarray,
                    known: frozenset[int] = frozenset()) -> tuple[list[tuple[int, LoopMatch, float, bool]], list[str]]:
@@ -322,11 +324,10 @@ class SubmapSLAM:
         window the graph sets, nearest first; those in ``known`` (matched already) count
         as candidates but are not matched again. Returns the verified matches as
         (reference, match, window m, surprising: the graph does not vouch for it) and the
-        reasons the other candidates tried were rejected."""
+        reasons the other candidates tried were rejected. The caller has checked that
+        there is something to match (:meth:`_matchable`, points in ``query``)."""
         cfg = self.config.submaps
         found, rejected = [], []
-        if cfg.loop_max_candidates == 0 or k < 2 or query.points.shape[0] == 0:
-            return found, rejected
         gap = _gaps(centres, radii, k)
         skipped = 0
         for j in np.argsort(gap, kind="stable"):
@@ -355,9 +356,11 @@ class SubmapSLAM:
         them) and the vote between matches is not held: a surprising one is left out."""
         self._matched_at = self._distance
         c = self.submap_index
-        if c < 2:
+        if not self._matchable(c):
             return
         query = matching_shape(self._local.map, self.config.submaps)
+        if query.points.shape[0] == 0:
+            return
         centres, radii = self._areas()
         base = self.graph.pose(c)
         centres = np.vstack([centres, compose(base, np.r_[query.center, 0.0])[:2]])
