@@ -685,7 +685,8 @@ def _transform_points(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def _add_submap_stats(totals: dict[str, int], slam: SubmapSLAM) -> None:
     """The global layer's counters: submaps, loop-closure candidates, accepted and
-    loop closures the graph down-weighted below ½ or set aside, rejections by reason."""
+    loop closures the graph down-weighted below ½ or set aside, rejections by reason, and
+    with ``submaps.loop_slides`` the loop closures kept as slides."""
     stats = slam.stats
     totals["submaps"] = len(slam.frozen) + (1 if slam.local.steps > slam._seed_steps else 0)
     totals["loop_candidates"] = stats.loop_candidates
@@ -695,6 +696,8 @@ def _add_submap_stats(totals: dict[str, int], slam: SubmapSLAM) -> None:
     totals["online_match_candidates"] = stats.online_candidates
     totals["online_matches"] = stats.online_matches
     totals["loop_closures_downweighted"] = int(np.count_nonzero(slam.loop_weights() < 0.5))
+    if slam.config.submaps.loop_slides:
+        totals["loop_slides"] = sum(1 for loop in slam.loops if loop.slide)
     for reason, count in stats.loop_rejections.items():
         totals[f"loop_rejected_{reason}"] = count
 

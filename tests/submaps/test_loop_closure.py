@@ -18,7 +18,9 @@ from bsslam.config import SubmapConfig
 from bsslam.errors import ConfigError
 from bsslam.se2 import between, compose, inverse
 from bsslam.spline import BSplineCurve, fit_curve
-from bsslam.submaps.loop_closure import LoopMatch, SubmapShape, match_submaps, matched_walls_covariance
+from bsslam.frontend.scan_matcher import ReferenceMap
+from bsslam.submaps.loop_closure import (LoopMatch, SubmapShape, match_submaps, matched_walls_covariance,
+                                         matcher_config, on_ridge, slide_covariance)
 from bsslam.trajectory import wrap_angle
 
 CONFIG = SubmapConfig()
@@ -246,9 +248,12 @@ def test_featureless_corridor_is_rejected():
     assert not match.ok and match.reason in ("degenerate", "ambiguous"), match
 
 
-def test_repetitive_rooms_never_match_wrongly():
+@pytest.mark.parametrize("slides", [False, True])
+def test_repetitive_rooms_never_match_wrongly(slides):
     """Two identical rooms side by side; the query sees the second one only; the guess is
-    halfway between the two alignments: rejected as ambiguous, or matched correctly."""
+    halfway between the two alignments: rejected as ambiguous, or matched correctly — with
+    ``loop_slides`` too: the two copies are not joined by a ridge (the wall between the rooms
+    lies between them)."""
     room = [_polyline((0, 0), (6, 0), (6, 5)), _polyline((6, 5), (0, 5), (0, 2.5)), _polyline((0, 1.5), (0, 0.2)),
             _polyline((2, 3), (3.5, 3))]
     rooms = room + [w + np.array([7.0, 0.0]) for w in room]
@@ -258,7 +263,9 @@ def test_repetitive_rooms_never_match_wrongly():
     truth = between(ref_frame, query_frame)
     wrong = compose(np.array([-7.0, 0.0, 0.0]), truth)                      # the same room, the other copy
     guess = 0.5 * (truth + wrong)
-    match = match_submaps(reference, query, guess, GUESS_COV, 4.0, math.radians(20.0), CONFIG)
+    match = match_submaps(reference, query, guess, GUESS_COV, 4.0, math.radians(20.0),
+                          dataclasses.replace(CONFIG, loop_slides=slides))
+    assert not match.slide
     if match.ok:
         dist, turn = _error(match, truth)
         assert dist < 0.05 and turn < math.radians(1.0), match
@@ -268,6 +275,44 @@ def test_repetitive_rooms_never_match_wrongly():
     # The runner-up is the other copy: 7 m away along x in the reference frame.
     found = {tuple(np.round(p[:2] - truth[:2])) for p in (match.relative, match.alternative)}
     assert found == {(0.0, 0.0), (-7.0, 0.0)}, (match.relative, match.alternative)
+
+
+def _wall_field(points: np.ndarray) -> ReferenceMap:
+    shape = SubmapShape.from_curves([fit_curve(points, 3, 0.5).curve], SPACING)
+    cfg = matcher_config(3.0, math.radians(20.0), CONFIG)
+    return ReferenceMap(shape.points, cfg, normals=shape.normals, linear=np.abs(shape.curvature) < 1.0)
+
+
+def test_a_slide_along_a_wall_is_a_ridge_and_two_copies_are_not():
+    """``on_ridge``: a query on a long straight wall slid 1.5 m along it scores as well all
+    the way (one answer); two posts 3 m apart, the query one post, do not (the score falls
+    between the copies)."""
+    wall = _wall_field(_polyline((0.0, 0.0), (30.0, 0.0)))
+    query = _polyline((10.0, 0.0), (16.0, 0.0))[::5]
+    pose = np.zeros(3)
+    best = float(wall.fine.score_poses(query, pose[None, :], np.zeros((1, 2), dtype=np.intp))[0, 0])
+    assert on_ridge(wall, query, pose, np.array([1.5, 0.0, 0.0]), 0.9 * best)
+    # off the wall's line by 0.3 m the points leave the wall's likelihood: no ridge to there
+    assert not on_ridge(wall, query, pose, np.array([1.5, 0.3, 0.0]), 0.9 * best)
+    posts = np.concatenate([_polyline((x, 0.0), (x + 0.6, 0.0), (x + 0.6, 0.6), (x, 0.6), (x, 0.0)) for x in (10.0, 13.0)])
+    field = _wall_field(posts)
+    one_post = _polyline((10.0, 0.0), (10.6, 0.0), (10.6, 0.6), (10.0, 0.6), (10.0, 0.0))[::3]
+    best = float(field.fine.score_poses(one_post, pose[None, :], np.zeros((1, 2), dtype=np.intp))[0, 0])
+    copy = float(field.fine.score_poses(one_post, np.array([[3.0, 0.0, 0.0]]), np.zeros((1, 2), dtype=np.intp))[0, 0])
+    assert copy > 0.9 * best                      # the other post is as good a match …
+    assert not on_ridge(field, one_post, pose, np.array([3.0, 0.0, 0.0]), 0.9 * best)   # … but not the same one
+
+
+def test_a_slide_widens_the_covariance_along_itself_only():
+    """``slide_covariance``: σ² u uᵀ along the slide, σ the larger of its length and the
+    window; nothing across it."""
+    pose, rival = np.array([1.0, 2.0, 0.1]), np.array([1.0 + 2.0 * math.cos(0.3), 2.0 + 2.0 * math.sin(0.3), 0.1])
+    added = slide_covariance(pose, rival, 3.0)
+    u = np.array([math.cos(0.3), math.sin(0.3), 0.0])
+    assert np.allclose(added, 9.0 * np.outer(u, u))
+    assert np.allclose(slide_covariance(pose, rival, 1.0), 4.0 * np.outer(u, u))    # the slide longer than the window
+    assert np.allclose(added @ np.array([-u[1], u[0], 0.0]), 0.0)
+    assert np.allclose(slide_covariance(pose, pose, 3.0), 0.0)
 
 
 def test_a_rival_the_graph_rules_out_is_held_to_the_looser_ambiguity_bound():

@@ -38,7 +38,7 @@ from bsslam.io.atomic_file import TEMP_SUFFIX, atomic_write
 
 CHECKPOINT_FILE = "checkpoint.pkl"
 #: Bumped whenever the header or the state's layout changes: an older checkpoint is refused.
-FORMAT = 11  # 2: the pose graph pickles its arguments by name (loop_outliers); 3: a submap shape carries its walls' σ;
+FORMAT = 12  # 2: the pose graph pickles its arguments by name (loop_outliers); 3: a submap shape carries its walls' σ;
 #            4: the front end keeps its last trusted matches (frontend.odometry_gate_steps);
 #            5: a loop closure keeps its match's rival alignment (the vote between matches);
 #            6: the front end keeps its matches' disagreement with the odometry (odometry_learned_window);
@@ -46,7 +46,7 @@ FORMAT = 11  # 2: the pose graph pickles its arguments by name (loop_outliers); 
 #            8: the front end's motion compounds the fallbacks' wide covariance alongside (the walls' check);
 #            9: the front end carries the fallbacks' error to the match after them;
 #            10: … and gates that match with their error as given;
-#            11: the two kept as one pair
+#            11: the two kept as one pair; 12: a loop closure says whether it is a slide (submaps.loop_slides)
 _MAGIC = "bsslam-checkpoint"
 
 

@@ -102,6 +102,8 @@ class LoopRecord:
             −1 while the match waits for support, not yet in the graph.
         rival: (3,) the runner-up alignment the match's covariance does not admit, or None
             (see :class:`~bsslam.submaps.loop_support.LoopEdge`).
+        slide: the match was kept as a slide along walls (``submaps.loop_slides``): its
+            runner-up is the same answer, so it has no rival.
     """
 
     reference: int
@@ -112,6 +114,7 @@ class LoopRecord:
     overlap_m: float
     loop_id: int = -1
     rival: np.ndarray | None = None
+    slide: bool = False
 
 
 @dataclass
@@ -686,9 +689,9 @@ def window_covers(covariance: np.ndarray, window_m: float, window_rad: float, co
 
 def _record(reference: int, query: int, match: LoopMatch) -> LoopRecord:
     """A verified match as a loop record (not yet in the graph), its rival kept for the vote."""
-    rival = match.alternative.copy() if match.ambiguity > 0 else None
+    rival = match.alternative.copy() if match.ambiguity > 0 and not match.slide else None
     return LoopRecord(reference, query, match.relative, match.covariance, match.inlier_fraction, match.overlap_m,
-                      rival=rival)
+                      rival=rival, slide=match.slide)
 
 
 def _edge(record: LoopRecord) -> LoopEdge:

@@ -23,7 +23,11 @@ fails):
   ``loop_max_ambiguity`` × the best when the pose graph expects the match and not that
   rival, ``loop_max_ambiguity_alone`` × the best otherwise (repetitive structure). Only
   the window is searched: a copy of the structure outside it is not seen, so the window
-  must cover the relative pose's real uncertainty;
+  must cover the relative pose's real uncertainty. With ``loop_slides`` a rival joined to
+  the match by a ridge of the same score (every pose on the line between them scores above
+  the bound: a slide along straight walls the refinement's covariance holds too tightly) is
+  no rival: the match is kept as a *slide*, its covariance widened along that line
+  (:func:`slide_covariance`);
 - ``incompatible``: the spline associations are not jointly compatible: fewer than two of
   the query's overlapping curves, or fewer than two thirds of them, agree with the
   alignment on their own (a match carried by one wall; a near-symmetric building matched
@@ -165,6 +169,8 @@ class LoopMatch:
         alternative: (3,) the best distinct alternative alignment.
         expected: the alignment lies within the 99 % region of the guess under its
             covariance (the pose graph expects it); False when no alignment was computed.
+        slide: kept although its rival scored above the ambiguity bound, the two joined
+            by a ridge of that score (``loop_slides``; its covariance widened along it).
     """
 
     ok: bool
@@ -180,6 +186,7 @@ class LoopMatch:
     correlation: float = 0.0
     alternative: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     expected: bool = False
+    slide: bool = False
 
 
 def matcher_config(window_m: float, window_rad: float, config: SubmapConfig,
@@ -301,8 +308,13 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
     # the graph tells the match from its rival when it expects the one and not the other;
     # otherwise the walls alone must
     told = expected and squared_mahalanobis(alternative, guess, guess_covariance) > _ADMITTED_CHI2
-    if ambiguity > (config.loop_max_ambiguity if told else config.loop_max_ambiguity_alone):
-        return reject("ambiguous", pose, **result)
+    bound = config.loop_max_ambiguity if told else config.loop_max_ambiguity_alone
+    slide = False
+    if ambiguity > bound:
+        if not (config.loop_slides and on_ridge(ref, search, pose, alternative, bound * correlation)):
+            return reject("ambiguous", pose, **result)
+        slide = True
+        covariance = covariance + slide_covariance(pose, alternative, window_m)
     if n_agree < 2 or n_agree < MIN_AGREEING_FRACTION * n_voting:
         return reject("incompatible", pose, **result)
     if config.loop_wall_covariance:
@@ -310,7 +322,34 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
         # the walls are
         covariance = covariance + matched_walls_covariance(reference.sigma[near[inlier]], query.sigma[inlier],
                                                            moved[inlier])
-    return LoopMatch(True, "ok", pose, covariance, **result)
+    return LoopMatch(True, "ok", pose, covariance, slide=slide, **result)
+
+
+def on_ridge(ref: ReferenceMap, points: np.ndarray, pose: np.ndarray, rival: np.ndarray, floor: float) -> bool:
+    """Whether every pose on the straight line from ``pose`` to ``rival`` (3,) (heading
+    interpolated the short way round), one fine cell apart, puts ``points`` (n, 2, the
+    query's, its own frame) at a mean likelihood of at least ``floor`` in ``ref``'s fine
+    field: the two are one answer slid along walls, not two copies of them."""
+    step = np.asarray(rival, dtype=float) - pose
+    step[2] = (step[2] + math.pi) % (2.0 * math.pi) - math.pi
+    n = max(2, int(math.ceil(math.hypot(step[0], step[1]) / ref.fine.resolution)) + 1)
+    line = pose[None, :] + np.linspace(0.0, 1.0, n)[:, None] * step[None, :]
+    scores = ref.fine.score_poses(points, line, np.zeros((1, 2), dtype=np.intp))[:, 0]
+    return bool(np.all(scores >= floor))
+
+
+def slide_covariance(pose: np.ndarray, rival: np.ndarray, window_m: float) -> np.ndarray:
+    """(3, 3) what a slide adds to its match's covariance: σ² u uᵀ along the line u (per
+    metre of translation, its heading change included) from ``pose`` to ``rival`` (3,),
+    σ the larger of their distance and the search window's half-width ``window_m`` (m):
+    the walls say nothing along the ridge, and it may run on to the window's edge."""
+    step = np.asarray(rival, dtype=float) - pose
+    step[2] = (step[2] + math.pi) % (2.0 * math.pi) - math.pi
+    distance = math.hypot(step[0], step[1])
+    if distance == 0.0:
+        return np.zeros((3, 3))
+    u = step / distance
+    return max(distance, float(window_m)) ** 2 * np.outer(u, u)
 
 
 def matched_walls_covariance(reference_sigma: np.ndarray, query_sigma: np.ndarray, points: np.ndarray) -> np.ndarray:
