@@ -301,6 +301,13 @@ def test_a_slide_along_a_wall_is_a_ridge_and_two_copies_are_not():
     copy = float(field.fine.score_poses(one_post, np.array([[3.0, 0.0, 0.0]]), np.zeros((1, 2), dtype=np.intp))[0, 0])
     assert copy > 0.9 * best                      # the other post is as good a match …
     assert not on_ridge(field, one_post, pose, np.array([3.0, 0.0, 0.0]), 0.9 * best)   # … but not the same one
+    # a square post turned a quarter about its centre fits itself again, but not on the way
+    square = _polyline((-0.4, -0.4), (0.4, -0.4), (0.4, 0.4), (-0.4, 0.4), (-0.4, -0.4))
+    field = _wall_field(square)
+    best = float(field.fine.score_poses(square[::3], pose[None, :], np.zeros((1, 2), dtype=np.intp))[0, 0])
+    turned = np.array([0.0, 0.0, math.pi / 2])
+    assert float(field.fine.score_poses(square[::3], turned[None, :], np.zeros((1, 2), dtype=np.intp))[0, 0]) > 0.9 * best
+    assert not on_ridge(field, square[::3], pose, turned, 0.9 * best)
 
 
 def test_a_slide_widens_the_covariance_along_itself_only():

@@ -311,7 +311,9 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
     bound = config.loop_max_ambiguity if told else config.loop_max_ambiguity_alone
     slide = False
     if ambiguity > bound:
-        if not (config.loop_slides and on_ridge(ref, search, pose, alternative, bound * correlation)):
+        # a slide moves along the walls: a rival distinct by its heading alone is no slide
+        along = math.hypot(alternative[0] - pose[0], alternative[1] - pose[1]) > config.loop_distinct_m
+        if not (config.loop_slides and along and on_ridge(ref, search, pose, alternative, bound * correlation)):
             return reject("ambiguous", pose, **result)
         slide = True
         covariance = covariance + slide_covariance(pose, alternative, window_m)
@@ -327,12 +329,15 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
 
 def on_ridge(ref: ReferenceMap, points: np.ndarray, pose: np.ndarray, rival: np.ndarray, floor: float) -> bool:
     """Whether every pose on the straight line from ``pose`` to ``rival`` (3,) (heading
-    interpolated the short way round), one fine cell apart, puts ``points`` (n, 2, the
-    query's, its own frame) at a mean likelihood of at least ``floor`` in ``ref``'s fine
-    field: the two are one answer slid along walls, not two copies of them."""
+    interpolated the short way round), close enough that no point moves more than one fine
+    cell from one to the next, puts ``points`` (n, 2, the query's, its own frame) at a mean
+    likelihood of at least ``floor`` in ``ref``'s fine field: the two are one answer slid
+    along walls, not two copies of them."""
     step = np.asarray(rival, dtype=float) - pose
     step[2] = (step[2] + math.pi) % (2.0 * math.pi) - math.pi
-    n = max(2, int(math.ceil(math.hypot(step[0], step[1]) / ref.fine.resolution)) + 1)
+    reach = float(np.max(np.hypot(points[:, 0], points[:, 1]))) if points.shape[0] else 0.0
+    travel = math.hypot(step[0], step[1]) + abs(step[2]) * reach
+    n = max(2, int(math.ceil(travel / ref.fine.resolution)) + 1)
     line = pose[None, :] + np.linspace(0.0, 1.0, n)[:, None] * step[None, :]
     scores = ref.fine.score_poses(points, line, np.zeros((1, 2), dtype=np.intp))[:, 0]
     return bool(np.all(scores >= floor))
