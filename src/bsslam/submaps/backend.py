@@ -103,7 +103,7 @@ class LoopRecord:
         rival: (3,) the runner-up alignment the match's covariance does not admit, or None
             (see :class:`~bsslam.submaps.loop_support.LoopEdge`).
         slide: the match was kept as a slide along walls (``submaps.loop_slides``): its
-            runner-up is the same answer, so it has no rival.
+            runner-up is the same answer, and ``rival`` the best alignment beyond the slide.
     """
 
     reference: int
@@ -689,7 +689,7 @@ def window_covers(covariance: np.ndarray, window_m: float, window_rad: float, co
 
 def _record(reference: int, query: int, match: LoopMatch) -> LoopRecord:
     """A verified match as a loop record (not yet in the graph), its rival kept for the vote."""
-    rival = match.alternative.copy() if match.ambiguity > 0 and not match.slide else None
+    rival = match.alternative.copy() if match.ambiguity > 0 else None
     return LoopRecord(reference, query, match.relative, match.covariance, match.inlier_fraction, match.overlap_m,
                       rival=rival, slide=match.slide)
 

@@ -27,7 +27,8 @@ fails):
   the match by a ridge of the same score (every pose on the line between them scores above
   the bound: a slide along straight walls the refinement's covariance holds too tightly) is
   no rival: the match is kept as a *slide*, its covariance widened along that line
-  (:func:`slide_covariance`);
+  (:func:`slide_covariance`), and the best alignment beyond the widened region is held to
+  the same bound;
 - ``incompatible``: the spline associations are not jointly compatible: fewer than two of
   the query's overlapping curves, or fewer than two thirds of them, agree with the
   alignment on their own (a match carried by one wall; a near-symmetric building matched
@@ -169,8 +170,9 @@ class LoopMatch:
         alternative: (3,) the best distinct alternative alignment.
         expected: the alignment lies within the 99 % region of the guess under its
             covariance (the pose graph expects it); False when no alignment was computed.
-        slide: kept although its rival scored above the ambiguity bound, the two joined
-            by a ridge of that score (``loop_slides``; its covariance widened along it).
+        slide: kept although its runner-up scored above the ambiguity bound, the two
+            joined by a ridge of that score (``loop_slides``; its covariance widened along
+            it, and ``alternative`` and ``ambiguity`` then the best alignment beyond it).
     """
 
     ok: bool
@@ -317,6 +319,16 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
             return reject("ambiguous", pose, **result)
         slide = True
         covariance = covariance + slide_covariance(pose, alternative, window_m)
+        # the slide is one answer; the rival is now the best alignment beyond it (a copy
+        # of the walls elsewhere, e.g. the next corridor), held to the same test
+        alternative, alt_score = ref.alternative(search, guess, start, config.loop_distinct_m,
+                                                 config.loop_distinct_rad, coarse,
+                                                 (pose, np.linalg.inv(covariance), _ADMITTED_CHI2))
+        ambiguity = alt_score / correlation if correlation > 0 else 1.0
+        told = expected and squared_mahalanobis(alternative, guess, guess_covariance) > _ADMITTED_CHI2
+        result.update(ambiguity=ambiguity, alternative=alternative)
+        if ambiguity > (config.loop_max_ambiguity if told else config.loop_max_ambiguity_alone):
+            return reject("ambiguous", pose, **result)
     if n_agree < 2 or n_agree < MIN_AGREEING_FRACTION * n_voting:
         return reject("incompatible", pose, **result)
     if config.loop_wall_covariance:
