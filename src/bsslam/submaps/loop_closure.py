@@ -50,6 +50,7 @@ from bsslam.errors import InputError
 from bsslam.frontend.scan_matcher import ReferenceMap, even_subset, transform_points, voxel_thin
 from bsslam.se2 import squared_mahalanobis
 from bsslam.spline import BSplineCurve
+from bsslam.trajectory import wrap_angle
 
 #: Reasons a match is rejected (``LoopMatch.reason``); "ok" otherwise.
 REJECT_REASONS = ("too_few_points", "too_little_overlap", "poor_inlier_fraction", "degenerate", "ambiguous",
@@ -309,13 +310,16 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
         return reject("degenerate", pose, **result)
     # the graph tells the match from its rival when it expects the one and not the other;
     # otherwise the walls alone must
-    told = expected and squared_mahalanobis(alternative, guess, guess_covariance) > _ADMITTED_CHI2
-    bound = config.loop_max_ambiguity if told else config.loop_max_ambiguity_alone
+    def bound(rival: np.ndarray) -> float:
+        told = expected and squared_mahalanobis(rival, guess, guess_covariance) > _ADMITTED_CHI2
+        return config.loop_max_ambiguity if told else config.loop_max_ambiguity_alone
+
     slide = False
-    if ambiguity > bound:
+    if ambiguity > bound(alternative):
         # a slide moves along the walls: a rival distinct by its heading alone is no slide
-        along = math.hypot(alternative[0] - pose[0], alternative[1] - pose[1]) > config.loop_distinct_m
-        if not (config.loop_slides and along and on_ridge(ref, search, pose, alternative, bound * correlation)):
+        along = math.hypot(*_step(pose, alternative)[:2]) > config.loop_distinct_m
+        if not (config.loop_slides and along
+                and on_ridge(ref, search, pose, alternative, bound(alternative) * correlation)):
             return reject("ambiguous", pose, **result)
         slide = True
         covariance = covariance + slide_covariance(pose, alternative, window_m)
@@ -325,9 +329,8 @@ def match_submaps(reference: SubmapShape, query: SubmapShape, guess: np.ndarray,
                                                  config.loop_distinct_rad, coarse,
                                                  (pose, np.linalg.inv(covariance), _ADMITTED_CHI2))
         ambiguity = alt_score / correlation if correlation > 0 else 1.0
-        told = expected and squared_mahalanobis(alternative, guess, guess_covariance) > _ADMITTED_CHI2
         result.update(ambiguity=ambiguity, alternative=alternative)
-        if ambiguity > (config.loop_max_ambiguity if told else config.loop_max_ambiguity_alone):
+        if ambiguity > bound(alternative):
             return reject("ambiguous", pose, **result)
     if n_agree < 2 or n_agree < MIN_AGREEING_FRACTION * n_voting:
         return reject("incompatible", pose, **result)
@@ -345,8 +348,7 @@ def on_ridge(ref: ReferenceMap, points: np.ndarray, pose: np.ndarray, rival: np.
     cell from one to the next, puts ``points`` (n, 2, the query's, its own frame) at a mean
     likelihood of at least ``floor`` in ``ref``'s fine field: the two are one answer slid
     along walls, not two copies of them."""
-    step = np.asarray(rival, dtype=float) - pose
-    step[2] = (step[2] + math.pi) % (2.0 * math.pi) - math.pi
+    step = _step(pose, rival)
     reach = float(np.max(np.hypot(points[:, 0], points[:, 1]))) if points.shape[0] else 0.0
     travel = math.hypot(step[0], step[1]) + abs(step[2]) * reach
     n = max(2, int(math.ceil(travel / ref.fine.resolution)) + 1)
@@ -355,13 +357,19 @@ def on_ridge(ref: ReferenceMap, points: np.ndarray, pose: np.ndarray, rival: np.
     return bool(np.all(scores >= floor))
 
 
+def _step(pose: np.ndarray, rival: np.ndarray) -> np.ndarray:
+    """(3,) ``rival − pose`` (x, y m in the reference frame; the heading wrapped)."""
+    step = np.asarray(rival, dtype=float) - pose
+    step[2] = wrap_angle(step[2])
+    return step
+
+
 def slide_covariance(pose: np.ndarray, rival: np.ndarray, window_m: float) -> np.ndarray:
     """(3, 3) what a slide adds to its match's covariance: σ² u uᵀ along the line u (per
     metre of translation, its heading change included) from ``pose`` to ``rival`` (3,),
     σ the larger of their distance and the search window's half-width ``window_m`` (m):
     the walls say nothing along the ridge, and it may run on to the window's edge."""
-    step = np.asarray(rival, dtype=float) - pose
-    step[2] = (step[2] + math.pi) % (2.0 * math.pi) - math.pi
+    step = _step(pose, rival)
     distance = math.hypot(step[0], step[1])
     if distance == 0.0:
         return np.zeros((3, 3))
