@@ -303,6 +303,8 @@ class SplineSLAM:
         # the gates select keep to these curves); the rest of the state is corrected once, at the end
         work = np.concatenate([POSE, mc.state_indices(beams.used_curves, self.state.size)])
         window = self.state.window(work)
+        if model.second_order:
+            beams = model.with_second_order(beams, mc, x0, offset, window.block(work), work)
         lin = self._linearize(beams, x0, offset, window, report)
         if lin is None:
             return

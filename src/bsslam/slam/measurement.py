@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
+from scipy.linalg import solve_triangular
 
 from bsslam.config import ObservationConfig
 from bsslam.scan import ObservedSpline
@@ -55,12 +56,16 @@ class Beams:
         curve: index of each beam's map spline in the filter's :class:`MapCurves` table.
         bearings: robot-frame bearings (rad); ranges: measured ranges (m);
         t0: Newton start on the map spline (m).
+        second_order: (k, K²) each beam's Hessian of its range in the prior's K principal
+            axes scaled by their σ, Sᵀ ∇²h S flattened (m), or None
+            (:meth:`RangeModel.with_second_order`).
     """
 
     curve: np.ndarray
     bearings: np.ndarray
     ranges: np.ndarray
     t0: np.ndarray
+    second_order: np.ndarray | None = None
 
     @functools.cached_property
     def used_curves(self) -> np.ndarray:
@@ -136,8 +141,9 @@ class RangeModel:
     τ (:func:`bearing_derivatives`; the rows are rescaled to variance R, see
     :meth:`linearize`), plus one shared by every beam of the scan on the same map spline, of
     variance σ_shared²·inflation (m²): the beams of one wall are not independent where the
-    wall is not where its spline says or the laser is biased on that surface. Implements
-    :class:`MeasurementModel`.
+    wall is not where its spline says or the laser is biased on that surface; with
+    ``observation.second_order``, plus the ranges' second-order error under the prior
+    (:meth:`with_second_order`). Implements :class:`MeasurementModel`.
 
     Args:
         config: the observation settings (noise, beam stride, grazing limit).
@@ -150,6 +156,7 @@ class RangeModel:
 
     def __init__(self, config: ObservationConfig):
         self.significant_bends_only = config.significant_bends_only
+        self.second_order = config.second_order
         self.R = (config.sigma_range_m ** 2 + config.sigma_model_m ** 2) * config.r_inflation
         self.shared = config.sigma_shared_m ** 2 * config.r_inflation
         self.bearing_variance = config.sigma_bearing_rad ** 2 * config.r_inflation
@@ -209,18 +216,92 @@ class RangeModel:
         restarted from the rows' last hit parameters (one compiled call for the copies)."""
         index, values, H_c = beam_kernels.select_rows(keep, lin.beam, beams.curve, beams.bearings, beams.ranges,
                                                       lin.H_c, lin.residual, lin.hit_t)
-        return (Beams(index[0], values[0], values[1], values[2]),
+        second = beams.second_order[lin.beam[keep]] if self.second_order and beams.second_order is not None else None
+        return (Beams(index[0], values[0], values[1], values[2], second),
                 Linearization(lin.cols, H_c, values[3], lin.R, index[1], values[4]))
+
+    def with_second_order(self, beams: Beams, curves: MapCurves, x: np.ndarray, laser_offset: np.ndarray,
+                          prior: np.ndarray, work: np.ndarray) -> Beams:
+        """``beams`` with their ranges' Hessians in the prior's principal axes
+        (:attr:`Beams.second_order`), which :meth:`whitened` turns into the second-order
+        error ½ tr(∇²h_i P ∇²h_j P) (``observation.second_order``).
+
+        With P = S Sᵀ (S (w, K) the eigenvectors of ``prior`` scaled by their σ, the axes of
+        non-zero variance), ∇²h_i s_k is the central difference of beam i's Jacobian between
+        x ± s_k (a step of one σ along the axis: the difference is the Hessian's where the
+        range is quadratic, and its average over the prior's spread where it is not), and
+        beam i's row is Sᵀ ∇²h_i S. A beam the range model loses at x ± s_k (a miss, grazing)
+        counts 0 along that axis.
+
+        Args:
+            beams: the beams to linearise (b of them); curves: the map's table.
+            x: (n,) the state mean; laser_offset: (3,) the laser in the robot frame.
+            prior: (w, w) the prior covariance of the state entries ``work`` (w,) (the pose
+                and the beams' splines' control points: all the ranges depend on).
+        """
+        lam, V = np.linalg.eigh(0.5 * (prior + prior.T))
+        axes = lam > 1e-12 * max(float(lam[-1]), 0.0)
+        S = V[:, axes] * np.sqrt(lam[axes])                   # (w, K)
+        n_beams, k = beams.ranges.shape[0], S.shape[1]
+        place = np.full(x.shape[0], -1, dtype=np.intp)
+        place[work] = np.arange(work.shape[0])
+        bearing_variance, self.bearing_variance = self.bearing_variance, 0.0   # the ranges' own Hessian, unscaled
+        try:
+            hessian_s = np.zeros((n_beams, k, work.shape[0]))    # ∇²h_i s_k on the working entries
+            for j in range(k):
+                step = np.zeros_like(x)
+                step[work] = S[:, j]
+                plus = self._jacobian_rows(beams, curves, x + step, laser_offset, place, work.shape[0])
+                minus = self._jacobian_rows(beams, curves, x - step, laser_offset, place, work.shape[0])
+                both = ~(np.isnan(plus[:, 0]) | np.isnan(minus[:, 0]))
+                hessian_s[both, j] = 0.5 * (plus[both] - minus[both])
+        finally:
+            self.bearing_variance = bearing_variance
+        rows = hessian_s @ S                                   # (b, K, K): s_kᵀ ∇²h_i s_l
+        rows = 0.5 * (rows + rows.transpose(0, 2, 1))
+        return dataclasses.replace(beams, second_order=rows.reshape(n_beams, k * k))
+
+    def _jacobian_rows(self, beams: Beams, curves: MapCurves, x: np.ndarray, laser_offset: np.ndarray,
+                       place: np.ndarray, width: int) -> np.ndarray:
+        """(b, w) each beam's Jacobian at ``x`` on the working entries (``place``: each
+        state index's column, −1 off them); NaN rows for the beams the model drops."""
+        out = np.full((beams.ranges.shape[0], width), np.nan)
+        lin = self.linearize(beams, curves, x, laser_offset)
+        if lin is not None:
+            at = place[lin.cols]
+            rows = np.zeros((lin.beam.shape[0], width))
+            rows[:, at[at >= 0]] = lin.H_c[:, at >= 0]
+            out[lin.beam] = rows
+        return out
 
     def whitened(self, beams: Beams, lin: Linearization) -> Linearization:
         """``lin`` with its rows whitened against the shared errors
         (:func:`beam_kernels.whiten_shared`, one group per map spline), so that the rows with
-        noise R·I give the update, NIS and gains of the block noise. ``lin`` itself when
-        there is no shared error. Gate on the rows of ``lin`` with :attr:`row_variance`: a
-        whitened row is no longer one beam."""
+        noise R·I give the update, NIS and gains of the block noise; with the beams'
+        second-order rows (:meth:`with_second_order`) their error ½ tr(∇²h_i P ∇²h_j P) joins
+        that noise. ``lin`` itself when there is neither. Gate on the rows of ``lin`` with
+        :attr:`row_variance`: a whitened row is no longer one beam."""
+        if self.second_order and beams.second_order is not None:
+            return self._whitened_full(beams, lin)
         if self.shared == 0.0:
             return lin
         H_c, residual = beam_kernels.whiten_shared(beams.curve[lin.beam], self.shared / self.R, lin.H_c, lin.residual)
+        return dataclasses.replace(lin, H_c=H_c, residual=residual)
+
+    def _whitened_full(self, beams: Beams, lin: Linearization) -> Linearization:
+        """:meth:`whitened` with the second-order error: R = r I + the shared block +
+        ½ F Fᵀ (F the rows' :attr:`Beams.second_order`, since ½ tr(A_i A_j) = ½ Σ_kl
+        A_i,kl A_j,kl for the symmetric A_i = Sᵀ ∇²h_i S), whitened by its Cholesky factor
+        (a dense (m, m) factorisation)."""
+        F = beams.second_order[lin.beam]
+        ratio = (0.5 / self.R) * (F @ F.T)
+        if self.shared:
+            group = beams.curve[lin.beam]
+            ratio += (self.shared / self.R) * (group[:, None] == group[None, :])
+        ratio[np.diag_indices_from(ratio)] += 1.0
+        L = np.linalg.cholesky(ratio)
+        H_c = solve_triangular(L, lin.H_c, lower=True)
+        residual = solve_triangular(L, lin.residual, lower=True)
         return dataclasses.replace(lin, H_c=H_c, residual=residual)
 
     def bend_weights(self, beams: Beams, lin: Linearization, curves: MapCurves, x: np.ndarray,
