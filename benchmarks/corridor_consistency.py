@@ -1,7 +1,7 @@
 """Pose NEES of the paper's filter down long simulated corridors, the figure the consistency
 issue targets (time-averaged NEES ≤ 4.5), with each of the filter's options that bear on it.
 
-    python benchmarks/corridor_consistency.py [--seeds N] [--plot PNG | --defaults [--workers W]]
+    python benchmarks/corridor_consistency.py [--seeds N] [--plot PNG | --defaults [--workers W] [--second-order]]
 
 The two corridor loops of ``bench_filter.py`` (the global EKF, simulated odometry under the
 paper's motion model, no front end, no second pass: ``simulation_config``):
@@ -89,21 +89,32 @@ def plot(path: str, seeds: int) -> None:
     fig.savefig(path, dpi=110)
 
 
-def _defaults_run(seed: int) -> tuple[float, float, float]:
+def _defaults_base(second_order: bool) -> tuple[SLAMConfig, object, int | None]:
     base, world, steps = setups()["defaults"]
+    if second_order:
+        base = base.replace(observation=dataclasses.replace(base.observation, second_order=True))
+    return base, world, steps
+
+
+def _defaults_run(seed: int, second_order: bool = False) -> tuple[float, float, float]:
+    base, world, steps = _defaults_base(second_order)
     return one(base, world, steps, base.estimator, base.mapping.extend, seed, base.observation.significant_bends_only)
 
 
-def defaults_only(seeds: int, workers: int) -> None:
+def defaults_only(seeds: int, workers: int, second_order: bool = False) -> None:
     """The issue's figure: the library's defaults (its estimator, extension and update) in the
-    80 × 50 m loop, seed by seed, ``workers`` runs at a time."""
+    80 × 50 m loop, seed by seed, ``workers`` runs at a time; with ``second_order``, and
+    ``observation.second_order`` on."""
+    import functools
     from multiprocessing import Pool
 
     with Pool(workers) as pool:
-        runs = np.array(pool.map(_defaults_run, range(seeds), chunksize=1))
-    base = setups()["defaults"][0]
+        runs = np.array(pool.map(functools.partial(_defaults_run, second_order=second_order), range(seeds),
+                                 chunksize=1))
+    base = _defaults_base(second_order)[0]
     print(f"80 × 50 m loop, the defaults ({base.estimator}, extension {'on' if base.mapping.extend else 'off'}, "
-          f"significant bends only {'on' if base.observation.significant_bends_only else 'off'}), seeds 0–{seeds - 1}")
+          f"significant bends only {'on' if base.observation.significant_bends_only else 'off'}, "
+          f"second order {'on' if base.observation.second_order else 'off'}), seeds 0–{seeds - 1}")
     print(f"time-averaged pose NEES: mean {runs[:, 0].mean():.1f}, median {np.median(runs[:, 0]):.1f} "
           f"(3.0 if consistent); per seed {', '.join(f'{v:.1f}' for v in runs[:, 0])}")
     print(f"final position error: median {np.median(runs[:, 1]):.2f} m")
@@ -117,12 +128,14 @@ def main() -> None:
     ap.add_argument("--defaults", action="store_true", help="instead of the table, only the library's defaults "
                     "in the 80 × 50 m loop, seed by seed")
     ap.add_argument("--workers", type=int, default=1, help="runs at a time with --defaults")
+    ap.add_argument("--second-order", action="store_true",
+                    help="with --defaults: and observation.second_order on (the ranges' second-order error)")
     args = ap.parse_args()
     if args.plot:
         plot(args.plot, args.seeds)
         return
     if args.defaults:
-        defaults_only(args.seeds, args.workers)
+        defaults_only(args.seeds, args.workers, args.second_order)
         return
     print(f"{'corridor':>9} {'estimator':>9} {'extension':>9} {'bends':>5} {'mean NEES':>10} {'min–max over runs':>18} "
           f"{'final error m':>14} {'final σ_φ rad':>14} {'s/run':>6}")
