@@ -120,9 +120,36 @@ def test_the_gates_selection_keeps_each_beams_second_order_rows():
     np.testing.assert_array_equal(kept.bearings[kept_lin.beam], beams.bearings[lin.beam[keep]])
 
 
-def test_without_second_order_the_beams_carry_none():
+def test_a_beams_second_order_rows_scale_with_its_row_for_the_bearings_sigma():
+    """With a bearing σ each row is scaled by √(R / (R + σ_τ² (∂z/∂τ)²)) (:meth:`linearize`),
+    and its second-order error with it: the rows are those of exact bearings times that factor."""
+    rng = np.random.default_rng(6)
+    curves, x, P, beams = _scene(rng)
+    work = np.arange(x.shape[0])
+    exact = RangeModel(ObservationConfig(sigma_bearing_rad=0.0, max_incidence_rad=math.radians(80), second_order=True))
+    noisy = RangeModel(ObservationConfig(sigma_bearing_rad=0.01, max_incidence_rad=math.radians(80), second_order=True))
+    lin_e, lin_n = exact.linearize(beams, curves, x, OFFSET), noisy.linearize(beams, curves, x, OFFSET)
+    factor = lin_n.H_c[:, 0] / lin_e.H_c[:, 0]
+    assert factor.min() < 0.9                                     # some rows weigh clearly less
+    want = exact.with_second_order(beams, curves, x, OFFSET, P, work).second_order[lin_e.beam] * factor[:, None]
+    got = noisy.with_second_order(beams, curves, x, OFFSET, P, work).second_order[lin_n.beam]
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-15)
+
+
+def test_with_second_order_off_the_update_is_the_first_order_one():
+    """The option off (the default), rows the beams carry are neither whitened against nor
+    kept by the gates' selection."""
     assert ObservationConfig().second_order is False
-    assert RangeModel(ObservationConfig()).second_order is False
+    rng = np.random.default_rng(8)
+    curves, x, P, beams = _scene(rng)
+    on = RangeModel(ObservationConfig(sigma_bearing_rad=0.0, max_incidence_rad=math.radians(80), second_order=True))
+    off = RangeModel(ObservationConfig(sigma_bearing_rad=0.0, max_incidence_rad=math.radians(80)))
+    beams = on.with_second_order(beams, curves, x, OFFSET, P, np.arange(x.shape[0]))
+    lin = off.linearize(beams, curves, x, OFFSET)
+    assert off.whitened(beams, lin) is lin
+    assert on.whitened(beams, lin) is not lin
+    kept, _ = off.select(beams, lin, np.ones(lin.beam.shape[0], dtype=bool))
+    assert kept.second_order is None
 
 
 @pytest.mark.parametrize("value", ["yes", 1, None])

@@ -205,11 +205,18 @@ class RangeModel:
         if rows.size == 0:
             return None
         if self.bearing_variance > 0.0:
-            dz_dtau = bearing_derivatives(H_c, ranges_predicted=beams.ranges[rows] - residual,
-                                          beam_angles=x[2] + laser_offset[2] + beams.bearings[rows])
-            scale = np.sqrt(self.R / (self.R + self.bearing_variance * dz_dtau ** 2))
+            scale = self._bearing_scale(beams, rows, H_c, residual, x, laser_offset)
             H_c, residual = H_c * scale[:, None], residual * scale
         return Linearization(cols, H_c, residual, self.R, rows, hit_t)
+
+    def _bearing_scale(self, beams: Beams, rows: np.ndarray, H_c: np.ndarray, residual: np.ndarray,
+                       x: np.ndarray, laser_offset: np.ndarray) -> np.ndarray:
+        """(m,) √(R / (R + σ_τ² (∂z/∂τ)²)) of the rows of an unscaled linearisation
+        (``rows`` their beams, ``H_c`` and ``residual`` as the range model gives them at
+        ``x``): what :meth:`linearize` multiplies each row by."""
+        dz_dtau = bearing_derivatives(H_c, ranges_predicted=beams.ranges[rows] - residual,
+                                      beam_angles=x[2] + laser_offset[2] + beams.bearings[rows])
+        return np.sqrt(self.R / (self.R + self.bearing_variance * dz_dtau ** 2))
 
     def select(self, beams: Beams, lin: Linearization, keep: np.ndarray) -> tuple[Beams, Linearization]:
         """The beams and their linearisation restricted to the rows in ``keep``, Newton
@@ -230,8 +237,9 @@ class RangeModel:
         non-zero variance), ∇²h_i s_k is the central difference of beam i's Jacobian between
         x ± s_k (a step of one σ along the axis: the difference is the Hessian's where the
         range is quadratic, and its average over the prior's spread where it is not), and
-        beam i's row is Sᵀ ∇²h_i S. A beam the range model loses at x ± s_k (a miss, grazing)
-        counts 0 along that axis.
+        beam i's row is Sᵀ ∇²h_i S, times the factor :meth:`linearize` scales its row by for
+        its bearing's σ at x (the row's second-order error scales with the row). A beam the
+        range model loses at x ± s_k (a miss, grazing) counts 0 along that axis.
 
         Args:
             beams: the beams to linearise (b of them); curves: the map's table.
@@ -255,10 +263,14 @@ class RangeModel:
                 minus = self._jacobian_rows(beams, curves, x - step, laser_offset, place, work.shape[0])
                 both = ~(np.isnan(plus[:, 0]) | np.isnan(minus[:, 0]))
                 hessian_s[both, j] = 0.5 * (plus[both] - minus[both])
+            at_x = self.linearize(beams, curves, x, laser_offset) if bearing_variance > 0.0 else None
         finally:
             self.bearing_variance = bearing_variance
         rows = hessian_s @ S                                   # (b, K, K): s_kᵀ ∇²h_i s_l
         rows = 0.5 * (rows + rows.transpose(0, 2, 1))
+        if at_x is not None:
+            rows[at_x.beam] *= self._bearing_scale(beams, at_x.beam, at_x.H_c, at_x.residual, x,
+                                                   laser_offset)[:, None, None]
         return dataclasses.replace(beams, second_order=rows.reshape(n_beams, k * k))
 
     def _jacobian_rows(self, beams: Beams, curves: MapCurves, x: np.ndarray, laser_offset: np.ndarray,
