@@ -251,20 +251,22 @@ class ObservationConfig:
             double loops stay in their NEES band on 91 % of the steps in rounded-room and
             mixed (49 % and 90 % with the paper's update), and the real logs' ATE moves
             within their seeds' scatter (README, Consistency).
-        second_order: each scan's update also weighs the ranges' second-order error under
-            the prior, the Gaussian second-order filter's ½ tr(∇²h_i P ∇²h_j P) (m²): a full
-            block added to R, shared by the beams through the state errors they share. Down
-            a straight corridor the pose's needle-shaped prior times the walls' relative tilt
-            gives the first-order update an along-corridor information that only the noise
-            supports, and it pushes the estimate ahead (docs/consistency.md, "Between the
-            walls"); this term weighs it. Computed by central differences of the Jacobian
-            along every principal axis of the working rows' prior (the pose and the matched
-            splines' control points): two linearisations per axis, about seven times the
-            time of a simulated run. Off (the default): the first-order update. Down the
-            benchmarks' 80 × 50 m corridor the pose NEES is 4.4 over ten seeds against 9.1,
-            the corridor loop is in its band on 24 % / 46 % of the steps (extension / none)
-            against 16 % / 26 %, but rounded-room with extension falls to 60–87 %
-            (docs/consistency.md, "The ranges' second order").
+        second_order: each scan's update also weighs the ranges' second-order error, the
+            Gaussian second-order filter's ½ tr(∇²h_i P ∇²h_j P) (m²): a full block added
+            to R, shared by the beams through the state errors they share. Down a straight
+            corridor the pose's needle-shaped prior times the walls' relative tilt gives the
+            first-order update an along-corridor information that only the noise supports
+            (docs/consistency.md, "Between the walls"); this term weighs it. Taken where the
+            iterations linearise (the first corrected estimate), under the spread the scan
+            leaves there (the first gain's posterior), along the estimator's own error (the
+            invariant EKF's rotates every position, :meth:`Estimator.error_curvature`); each
+            beam's Hessian on its own variables (the pose and its piece's control points) by
+            central differences, 22 linearisations of the scan's beams for cubic splines.
+            Off (the default): the first-order update. Down the benchmarks' 80 × 50 m
+            corridor the pose NEES is 7.7 over ten seeds against 9.1, the double loops keep
+            their band as without it (rounded-room 93 %, the corridor loop 16 %), at about
+            twice the time of a simulated run (docs/consistency.md, "The ranges' second
+            order").
         r_inflation: factor on the range variances (the paper's "inflated R" uses 3).
         gate_probability: χ² (1 dof) probability of the per-beam innovation gate.
         max_incidence_rad: beams hitting a wall more obliquely than this (angle between

@@ -43,6 +43,9 @@ class DenseGain:
     def posterior(self):
         return self.P - self.K @ self.H @ self.P
 
+    def posterior_block(self):
+        return self.posterior()[np.ix_(self.rows, self.rows)]
+
     def posterior_variances(self, cols, H_c, R):
         H2 = _jacobian(self.P.shape[0], cols, H_c)
         return np.diag(H2 @ self.posterior() @ H2.T) + np.diag(noise_matrix(R, H2.shape[0]))

@@ -11,10 +11,12 @@ import pytest
 
 from bsslam.config import ObservationConfig
 from bsslam.slam.association import Match
+from bsslam.slam import beam_kernels
 from bsslam.slam.measurement import RangeModel
 
 from beam_groups_oracle import beam_groups as oracle_beam_groups
 from beam_groups_oracle import select_rows as oracle_select_rows
+from second_order_oracle import half_pair_traces
 
 
 def _same(a: np.ndarray, b: np.ndarray) -> bool:
@@ -162,3 +164,24 @@ def test_without_a_shared_error_the_rows_are_not_whitened():
     assert RangeModel(ObservationConfig()).whitened(None, lin) is lin
     model = RangeModel(ObservationConfig(sigma_range_m=0.03, sigma_model_m=0.0, sigma_shared_m=0.01))
     assert model.row_variance == pytest.approx(0.03 ** 2 + 0.01 ** 2)
+
+
+def test_half_pair_traces_match_the_numpy_form_and_the_dense_trace():
+    """The compiled pairs' traces equal the numpy form (the oracle), and both ½ tr(H_i P H_j P)
+    written densely on the whole state; the result is exactly symmetric."""
+    rng = np.random.default_rng(2)
+    m, L, w = 17, 5, 12
+    local = np.stack([rng.choice(w, L, replace=False) for _ in range(m)])
+    H = rng.standard_normal((m, L, L))
+    H = H + H.transpose(0, 2, 1)
+    A = rng.standard_normal((w, w))
+    P = A @ A.T
+    Y = H @ P[local]
+    got = beam_kernels.half_pair_traces(Y, local)
+    np.testing.assert_allclose(got, half_pair_traces(Y, local), rtol=1e-12, atol=1e-12)
+    dense = np.zeros((m, w, w))
+    for i in range(m):
+        dense[i][np.ix_(local[i], local[i])] = H[i]
+    want = 0.5 * np.einsum("iab,bc,jcd,da->ij", dense, P, dense, P)
+    np.testing.assert_allclose(got, want, rtol=1e-10)
+    np.testing.assert_array_equal(got, got.T)

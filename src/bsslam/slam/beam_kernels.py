@@ -1,6 +1,7 @@
 """Compiled bookkeeping of the filter's beams: which beams of a scan go to which map spline
 (:func:`beam_groups`), the rows the innovation gates keep (:func:`select_rows`) and the
-rows whitened against an error the beams on one spline share (:func:`whiten_shared`).
+rows whitened against an error the beams on one spline share (:func:`whiten_shared`), and
+the covariance of the beams' second-order errors (:func:`half_pair_traces`).
 
 A scan has a handful of observed splines and matches and tens of beams. Written as numpy,
 the assignment was a Python loop over the splines and their matches with a few masks,
@@ -165,3 +166,26 @@ def whiten_shared(group, ratio, H_c, residual):
         for j in range(n_cols):
             out_H[i, j] = H_c[i, j] - alpha[g] * sum_H[g, j]
     return out_H, out_r
+
+
+@jit
+def half_pair_traces(Y, local):
+    """(m, m) ½ tr(H_i P_{L_i L_j} H_j P_{L_j L_i}) of m functions, each with its symmetric
+    Hessian H_i on its own L variables, under N(0, P): the covariance of their second-order
+    errors (m²). Given ``Y`` (m, L, w) = H_i P[L_i, :] and ``local`` (m, L) each function's
+    columns of P, it is ½ Σ_ac Y[i, a, L_j c] Y[j, c, L_i a]: L² products a pair, reading
+    only the two functions' own columns. Exactly symmetric (each pair computed once). The
+    numpy form (the (m L)² products gathered) is the oracle in
+    ``tests/slam/second_order_oracle.py``."""
+    m, L = local.shape
+    out = np.empty((m, m))
+    for i in range(m):
+        for j in range(i, m):
+            s = 0.0
+            for a in range(L):
+                la = local[i, a]
+                for c in range(L):
+                    s += Y[i, a, local[j, c]] * Y[j, c, la]
+            out[i, j] = 0.5 * s
+            out[j, i] = 0.5 * s
+    return out

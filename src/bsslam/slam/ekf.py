@@ -244,6 +244,11 @@ class StackedGain:
         P_post = P_cc - Z @ Z.T
         return np.einsum("ij,ij->i", H_c @ P_post, H_c) + _noise_diagonal(range_variance)
 
+    def posterior_block(self) -> np.ndarray:
+        """(w, w) the posterior P⁺ = P − P Hᵀ S⁻¹ H P of this gain on its working rows."""
+        Z = self.P_c @ self.Y.T
+        return self._columns.block(self._columns.rows) - Z @ Z.T
+
     def update_covariance(self, state: JointState) -> None:
         """P ← P − P Hᵀ S⁻¹ H P, as P − Z Zᵀ with the smaller of the two possible ranks,
         handed to ``state`` (which defers it, see :class:`JointState`)."""

@@ -53,6 +53,9 @@ class Gain(Protocol):
     def pose_variances(self, prior: np.ndarray) -> np.ndarray:
         """(3,) posterior pose variances under this gain, from the prior ones (3,)."""
 
+    def posterior_block(self) -> np.ndarray:
+        """(w, w) the posterior covariance under this gain on the window's rows."""
+
 
 class CovarianceWindow(Protocol):
     """The prior covariance on working rows (the pose first), read for repeated gains."""
@@ -113,6 +116,14 @@ class Estimator(Protocol):
         (:mod:`bsslam.slam.invariant_ekf`, which may add the heading's column). The filter
         gates, iterates and updates with it, and reads the variance of other functions of
         the state (a spline's bend) through it."""
+
+    def error_curvature(self, index: np.ndarray, G: np.ndarray, x: np.ndarray | None = None) -> np.ndarray | None:
+        """(m, L, L) what this estimator's error coordinates add to the Hessians of m
+        functions of the state, each of its own variables ``index`` (m, L) (state indices,
+        −1 for none), given their gradients G (m, L) there at ``x`` (the mean when None): the state's own
+        second derivatives along the error coordinates, weighted by G, written on x − x̂.
+        None for the EKF and the OC-EKF, whose error x − x̂ is linear; the invariant EKF's
+        error rotates every position (:meth:`InvariantEKF.error_curvature`)."""
 
     def anchor(self, idx_x: np.ndarray, idx_y: np.ndarray) -> None:
         """A spline was refitted (extended): the entries ``idx_x``, ``idx_y`` (paired x and y
@@ -188,6 +199,9 @@ class CompressedEKF:
     def constrain(self, cols: np.ndarray, H: np.ndarray, x: np.ndarray | None = None
                   ) -> tuple[np.ndarray, np.ndarray]:
         return cols, H
+
+    def error_curvature(self, index: np.ndarray, G: np.ndarray, x: np.ndarray | None = None) -> np.ndarray | None:
+        return None
 
     def anchor(self, idx_x: np.ndarray, idx_y: np.ndarray) -> None:
         pass

@@ -303,15 +303,19 @@ class SplineSLAM:
         # the gates select keep to these curves); the rest of the state is corrected once, at the end
         work = np.concatenate([POSE, mc.state_indices(beams.used_curves, self.state.size)])
         window = self.state.window(work)
-        if model.second_order:
-            beams = model.with_second_order(beams, mc, x0, offset, window.block(work), work)
         lin = self._linearize(beams, x0, offset, window, report)
         if lin is None:
             return
         gated = self._gated(beams, lin, window, x0, work, offset, report)
         if gated is None:
             return
-        iterated = self._iterate(*gated, window, x0, work, offset)
+        beams, lin, x_i, gain = gated
+        if model.second_order:
+            # the linearisation's error where the iterations linearise: at the first corrected
+            # estimate, under the spread the scan leaves (the posterior of the first gain)
+            beams = model.with_second_order(beams, mc, x_i, offset, gain.posterior_block(), work,
+                                            lambda index, G: self.state.error_curvature(index, G, x_i))
+        iterated = self._iterate(beams, lin, x_i, window, x0, work, offset)
         if iterated is None:
             return
         beams, lin, nu, gain = iterated
@@ -342,7 +346,8 @@ class SplineSLAM:
 
     def _gated(self, beams, lin, window, x0, work, offset, report: StepReport):
         """The beams whose innovations pass the gates, linearised at the first corrected
-        estimate x_i: ``(beams, lin, x_i)``, or None when none is left.
+        estimate x_i, and the gain that gave x_i: ``(beams, lin, x_i, gain)``, or None when
+        none is left.
 
         Gating at the prior alone is biased: every innovation carries the same pose error,
         so after a poorly predicted step a tight gate drops exactly the beams that disagree
@@ -367,7 +372,7 @@ class SplineSLAM:
         if not fine.any():
             return None
         beams, lin = model.select(beams, lin, fine)
-        return beams, lin, x_i
+        return beams, lin, x_i, gain
 
     def _iterate(self, beams, lin, x_i, window, x0, work, offset):
         """Gauss–Newton on the mean from x_i, on the working rows: ``(beams, lin, ν, gain)``

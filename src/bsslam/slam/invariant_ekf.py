@@ -96,6 +96,54 @@ class InvariantEKF(CompressedEKF):
         H[:, at[0]] += H @ self.turn(x - self.x, cols)
         return cols, H
 
+    def error_curvature(self, index: np.ndarray, G: np.ndarray, x: np.ndarray | None = None) -> np.ndarray:
+        """(m, L, L) the invariant error's second-order terms in the Hessians (on x − x̂, the
+        covariance this filter carries, ``P = A Σ_ξ Aᵀ``) of m functions, each of its own
+        variables ``index`` (m, L) (state indices, −1 for none; each holds the heading, and
+        a position's x and y together), with gradients G (m, L) there at ``x`` (the mean
+        when None).
+
+        The error ξ acts by the group's exponential: every position p (the robot's and each
+        control point) becomes ``R(ξ_φ) p̂ + V(ξ_φ) ξ_p``, ``V(θ) ≈ I + θ J / 2``, so beyond
+        first order (``A ξ``) it moves by ``−ξ_φ² p̂ / 2 + ξ_φ J ξ_p / 2``: its second
+        derivatives are −p̂ (along ξ_φ twice) and J / 2 (ξ_φ with ξ_p). In these
+        coordinates a rigid motion of everything is exact, and a range, which no rigid
+        motion changes, has no curvature along one; along x − x̂ it has (a straight step
+        along a rotation stretches every distance by √(1 + θ²)), and that spurious part is
+        what this removes. In ξ the terms are C: ``c = −Σ_p g_p · p̂`` on (φ, φ) and
+        ``Jᵀ g_p / 2`` between φ and p; on x − x̂ they are ``A⁻ᵀ C A⁻¹``, with
+        ``A⁻¹ = I − J x̂ e_φᵀ``: local too, on the same variables."""
+        x = self.x if x is None else x
+        index = np.asarray(index, dtype=np.intp)
+        m, L = index.shape
+        present = index >= 0
+        safe = np.where(present, index, 0)
+        is_heading = safe == HEADING
+        if np.any(is_heading.sum(axis=1) != 1):
+            raise FilterError("error curvature: each function's variables must hold the heading once")
+        at = np.argmax(is_heading, axis=1)                     # (m,) the heading's slot
+        sign = np.where(present, self._sign[safe], 0.0)
+        # the slot of each position's mate (its other coordinate) among the same variables
+        mate_of = np.where(present, self._mate[safe], -2)
+        same = (index[:, None, :] == mate_of[:, :, None]) & (sign[:, :, None] != 0)
+        if np.any(same.sum(axis=2) != (sign != 0)):
+            raise FilterError("error curvature: a position's x and y must both be among the variables")
+        mate_slot = np.argmax(same, axis=2)
+        G = np.where(present, G, 0.0)
+        p_hat = x[safe]
+        c = -np.einsum("ml,ml->m", np.where(sign != 0, G, 0.0), p_hat)
+        half_jt_g = -0.5 * sign * np.take_along_axis(G, mate_slot, axis=1)     # Jᵀ g / 2 = −J g / 2
+        rows = np.arange(m)
+        C = np.zeros((m, L, L))
+        C[rows, at, :] += half_jt_g
+        C[rows, :, at] += half_jt_g
+        C[rows, at, at] += c
+        # A⁻ᵀ C A⁻¹: the heading's column less C (J x̂), then its row less (J x̂)ᵀ of that
+        turned = sign * np.take_along_axis(p_hat, mate_slot, axis=1)           # J x̂ on the positions, 0 elsewhere
+        C[rows, :, at] -= np.einsum("mab,mb->ma", C, turned)
+        C[rows, at, :] -= np.einsum("ma,mab->mb", turned, C)
+        return C
+
     def update(self, cols: np.ndarray, H: np.ndarray, residual: np.ndarray, R: Noise,
                gain: StackedGain | None = None) -> Innovation:
         before = self.x.copy()

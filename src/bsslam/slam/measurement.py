@@ -26,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -56,9 +57,8 @@ class Beams:
         curve: index of each beam's map spline in the filter's :class:`MapCurves` table.
         bearings: robot-frame bearings (rad); ranges: measured ranges (m);
         t0: Newton start on the map spline (m).
-        second_order: (k, K²) each beam's Hessian of its range in the prior's K principal
-            axes scaled by their σ, Sᵀ ∇²h S flattened (m), or None
-            (:meth:`RangeModel.with_second_order`).
+        second_order: (k, k) the covariance of the beams' second-order errors under the
+            prior (m²), or None (:meth:`RangeModel.with_second_order`).
     """
 
     curve: np.ndarray
@@ -223,55 +223,110 @@ class RangeModel:
         restarted from the rows' last hit parameters (one compiled call for the copies)."""
         index, values, H_c = beam_kernels.select_rows(keep, lin.beam, beams.curve, beams.bearings, beams.ranges,
                                                       lin.H_c, lin.residual, lin.hit_t)
-        second = beams.second_order[lin.beam[keep]] if self.second_order and beams.second_order is not None else None
+        second = None
+        if self.second_order and beams.second_order is not None:
+            kept = lin.beam[keep]
+            second = beams.second_order[np.ix_(kept, kept)]
         return (Beams(index[0], values[0], values[1], values[2], second),
                 Linearization(lin.cols, H_c, values[3], lin.R, index[1], values[4]))
 
     def with_second_order(self, beams: Beams, curves: MapCurves, x: np.ndarray, laser_offset: np.ndarray,
-                          prior: np.ndarray, work: np.ndarray) -> Beams:
-        """``beams`` with their ranges' Hessians in the prior's principal axes
-        (:attr:`Beams.second_order`), which :meth:`whitened` turns into the second-order
-        error ½ tr(∇²h_i P ∇²h_j P) (``observation.second_order``).
+                          prior: np.ndarray, work: np.ndarray,
+                          curvature: Callable[[np.ndarray, np.ndarray], np.ndarray | None] | None = None) -> Beams:
+        """``beams`` with their ranges' second-order error under the prior,
+        ½ tr(∇²h_i P ∇²h_j P) between every two beams (:attr:`Beams.second_order`), which
+        :meth:`whitened` adds to their noise (``observation.second_order``).
 
-        With P = S Sᵀ (S (w, K) the eigenvectors of ``prior`` scaled by their σ, the axes of
-        non-zero variance), ∇²h_i s_k is the central difference of beam i's Jacobian between
-        x ± s_k (a step of one σ along the axis: the difference is the Hessian's where the
-        range is quadratic, and its average over the prior's spread where it is not), and
-        beam i's row is Sᵀ ∇²h_i S, times the factor :meth:`linearize` scales its row by for
-        its bearing's σ at x (the row's second-order error scales with the row). A beam the
-        range model loses at x ± s_k (a miss, grazing) counts 0 along that axis.
+        A range depends on the pose and on the p + 1 control points of the piece it hits
+        only: its Hessian is (3 + 2(p+1))² on those variables. Each is a central difference
+        of the beams' Jacobians between x ± one σ of the prior along the variable (the
+        Hessian where the range is quadratic, its average over the prior's spread where it
+        is not), and one step serves every beam at once: the pose's three entries, then the
+        x (and the y) coordinates of every (p+1)-th control point, which puts exactly one
+        control point of each piece's window in each step. A beam the range model loses at
+        a step counts 0 along it. The pairs' traces then read P only on the two beams'
+        variables. Each beam's error is scaled by the factor :meth:`linearize` scales its
+        row by for its bearing's σ at x (the row's second-order error scales with the row).
 
         Args:
             beams: the beams to linearise (b of them); curves: the map's table.
             x: (n,) the state mean; laser_offset: (3,) the laser in the robot frame.
             prior: (w, w) the prior covariance of the state entries ``work`` (w,) (the pose
                 and the beams' splines' control points: all the ranges depend on).
+            curvature: the estimator's error coordinates' own second-order terms,
+                ``curvature(index, G)`` → (b', L, L) or None, for the variables ``index``
+                (b', L) (−1: none) of the b' beams that hit at x and their gradients G
+                (b', L) there (:meth:`Estimator.error_curvature`); the Hessians are then
+                those along the estimator's error, not along x − x̂. None: x − x̂.
         """
-        lam, V = np.linalg.eigh(0.5 * (prior + prior.T))
-        axes = lam > 1e-12 * max(float(lam[-1]), 0.0)
-        S = V[:, axes] * np.sqrt(lam[axes])                   # (w, K)
-        n_beams, k = beams.ranges.shape[0], S.shape[1]
-        place = np.full(x.shape[0], -1, dtype=np.intp)
-        place[work] = np.arange(work.shape[0])
+        n_beams = beams.ranges.shape[0]
+        block = np.zeros((n_beams, n_beams))
         bearing_variance, self.bearing_variance = self.bearing_variance, 0.0   # the ranges' own Hessian, unscaled
         try:
-            hessian_s = np.zeros((n_beams, k, work.shape[0]))    # ∇²h_i s_k on the working entries
-            for j in range(k):
-                step = np.zeros_like(x)
-                step[work] = S[:, j]
-                plus = self._jacobian_rows(beams, curves, x + step, laser_offset, place, work.shape[0])
-                minus = self._jacobian_rows(beams, curves, x - step, laser_offset, place, work.shape[0])
-                both = ~(np.isnan(plus[:, 0]) | np.isnan(minus[:, 0]))
-                hessian_s[both, j] = 0.5 * (plus[both] - minus[both])
-            at_x = self.linearize(beams, curves, x, laser_offset) if bearing_variance > 0.0 else None
+            lin = self.linearize(beams, curves, x, laser_offset)
+            if lin is None:
+                return dataclasses.replace(beams, second_order=block)
+            index, hessians = self._local_hessians(beams, lin, curves, x, laser_offset, prior, work)
         finally:
             self.bearing_variance = bearing_variance
-        rows = hessian_s @ S                                   # (b, K, K): s_kᵀ ∇²h_i s_l
-        rows = 0.5 * (rows + rows.transpose(0, 2, 1))
-        if at_x is not None:
-            rows[at_x.beam] *= self._bearing_scale(beams, at_x.beam, at_x.H_c, at_x.residual, x,
-                                                   laser_offset)[:, None, None]
-        return dataclasses.replace(beams, second_order=rows.reshape(n_beams, k * k))
+        if curvature is not None:
+            place = np.full(x.shape[0], -1, dtype=np.intp)
+            place[lin.cols] = np.arange(lin.cols.shape[0])
+            G = np.where(index >= 0, np.take_along_axis(lin.H_c, place[np.maximum(index, 0)], axis=1), 0.0)
+            extra = curvature(index, G)
+            if extra is not None:
+                hessians += extra
+        if bearing_variance > 0.0:
+            hessians *= self._bearing_scale(beams, lin.beam, lin.H_c, lin.residual, x, laser_offset)[:, None, None]
+        position = np.full(x.shape[0], -1, dtype=np.intp)
+        position[work] = np.arange(work.shape[0])
+        local = position[np.maximum(index, 0)]
+        block[np.ix_(lin.beam, lin.beam)] = beam_kernels.half_pair_traces(hessians @ prior[local], local)
+        return dataclasses.replace(beams, second_order=block)
+
+    def _local_hessians(self, beams: Beams, lin: Linearization, curves: MapCurves, x: np.ndarray,
+                        laser_offset: np.ndarray, prior: np.ndarray, work: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
+        """``(index (m, L), H (m, L, L))``: the variables of each of the m beams of ``lin``
+        (the pose, then its piece's control points' x, then their y; −1 for a padded or
+        fixed one) and its range's Hessian on them (1/m), symmetric; L = 3 + 2(p+1)."""
+        table, p1 = curves.table, curves.table.p + 1
+        piece, _, _ = table.locate(beams.curve[lin.beam], lin.hit_t)
+        window = table.window[piece]                                     # (m, p+1) control-point rows
+        rows_xy = curves.state_rows[window]                              # (m, p+1, 2)
+        real = table.real[piece] & (rows_xy[:, :, 0] >= 0)
+        m = lin.beam.shape[0]
+        index = np.concatenate([np.broadcast_to(np.arange(3), (m, 3)),
+                                np.where(real, rows_xy[:, :, 0], -1), np.where(real, rows_xy[:, :, 1], -1)], axis=1)
+        # each variable's step: the pose's three, then the x and the y of every (p+1)-th row
+        step_of = np.concatenate([np.broadcast_to(np.arange(3), (m, 3)), 3 + window % p1, 3 + p1 + window % p1],
+                                 axis=1)
+        sigma = np.zeros(x.shape[0])
+        sigma[work] = np.sqrt(np.maximum(np.diag(prior), 0.0))
+        cp_rows = np.flatnonzero(np.isin(np.arange(curves.state_rows.shape[0]), window[real]))
+        members = [np.array([k]) for k in range(3)]
+        for coord in range(2):
+            for r in range(p1):
+                members.append(curves.state_rows[cp_rows[cp_rows % p1 == r], coord])
+        place = np.full(x.shape[0], -1, dtype=np.intp)
+        place[work] = np.arange(work.shape[0])
+        local = place[np.maximum(index, 0)]                              # (m, L) columns of the Jacobian rows
+        H = np.zeros((m, index.shape[1], index.shape[1]))
+        for s, entries in enumerate(members):
+            entries = entries[sigma[entries] > 0.0]
+            slots = (step_of == s) & (index >= 0) & (sigma[np.maximum(index, 0)] > 0.0)
+            if entries.size == 0 or not slots.any():
+                continue
+            step = np.zeros_like(x)
+            step[entries] = sigma[entries]
+            plus = self._jacobian_rows(beams, curves, x + step, laser_offset, place, work.shape[0])[lin.beam]
+            minus = self._jacobian_rows(beams, curves, x - step, laser_offset, place, work.shape[0])[lin.beam]
+            diff = np.nan_to_num(0.5 * (plus - minus))                     # a beam lost at a step: 0
+            beam, slot = np.nonzero(slots)
+            H[beam, :, slot] = np.take_along_axis(diff, local, axis=1)[beam] / sigma[index[beam, slot]][:, None]
+        H[index < 0] = 0.0
+        H.transpose(0, 2, 1)[index < 0] = 0.0
+        return index, 0.5 * (H + H.transpose(0, 2, 1))
 
     def _jacobian_rows(self, beams: Beams, curves: MapCurves, x: np.ndarray, laser_offset: np.ndarray,
                        place: np.ndarray, width: int) -> np.ndarray:
@@ -301,12 +356,10 @@ class RangeModel:
         return dataclasses.replace(lin, H_c=H_c, residual=residual)
 
     def _whitened_full(self, beams: Beams, lin: Linearization) -> Linearization:
-        """:meth:`whitened` with the second-order error: R = r I + the shared block +
-        ½ F Fᵀ (F the rows' :attr:`Beams.second_order`, since ½ tr(A_i A_j) = ½ Σ_kl
-        A_i,kl A_j,kl for the symmetric A_i = Sᵀ ∇²h_i S), whitened by its Cholesky factor
-        (a dense (m, m) factorisation)."""
-        F = beams.second_order[lin.beam]
-        ratio = (0.5 / self.R) * (F @ F.T)
+        """:meth:`whitened` with the second-order error: R = r I + the shared block + the
+        rows' :attr:`Beams.second_order`, whitened by its Cholesky factor (a dense (m, m)
+        factorisation)."""
+        ratio = beams.second_order[np.ix_(lin.beam, lin.beam)] / self.R
         if self.shared:
             group = beams.curve[lin.beam]
             ratio += (self.shared / self.R) * (group[:, None] == group[None, :])
@@ -355,3 +408,4 @@ class RangeModel:
         bend_kernels.scale_along_splines(H_c, lin.cols, beams.curve[lin.beam], labels, w, curves.state_rows,
                                          curves.table.cp_start)
         return dataclasses.replace(lin, H_c=H_c)
+
