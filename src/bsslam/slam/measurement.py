@@ -58,7 +58,7 @@ class Beams:
         bearings: robot-frame bearings (rad); ranges: measured ranges (m);
         t0: Newton start on the map spline (m).
         second_order: (k, k) the covariance of the beams' second-order errors under the
-            prior (m²), or None (:meth:`RangeModel.with_second_order`).
+            state's spread (m²), or None (:meth:`RangeModel.with_second_order`).
     """
 
     curve: np.ndarray
@@ -142,7 +142,7 @@ class RangeModel:
     :meth:`linearize`), plus one shared by every beam of the scan on the same map spline, of
     variance σ_shared²·inflation (m²): the beams of one wall are not independent where the
     wall is not where its spline says or the laser is biased on that surface; with
-    ``observation.second_order``, plus the ranges' second-order error under the prior
+    ``observation.second_order``, plus the ranges' second-order error under the state's spread
     (:meth:`with_second_order`). Implements :class:`MeasurementModel`.
 
     Args:
@@ -231,17 +231,16 @@ class RangeModel:
                 Linearization(lin.cols, H_c, values[3], lin.R, index[1], values[4]))
 
     def with_second_order(self, beams: Beams, curves: MapCurves, x: np.ndarray, laser_offset: np.ndarray,
-                          prior: np.ndarray, work: np.ndarray,
+                          covariance: np.ndarray, work: np.ndarray,
                           curvature: Callable[[np.ndarray, np.ndarray], np.ndarray | None] | None = None) -> Beams:
-        """``beams`` with their ranges' second-order error under the prior,
+        """``beams`` with their ranges' second-order error under the state's spread P,
         ½ tr(∇²h_i P ∇²h_j P) between every two beams (:attr:`Beams.second_order`), which
         :meth:`whitened` adds to their noise (``observation.second_order``).
 
         A range depends on the pose and on the p + 1 control points of the piece it hits
         only: its Hessian is (3 + 2(p+1))² on those variables. Each is a central difference
-        of the beams' Jacobians between x ± one σ of the prior along the variable (the
-        Hessian where the range is quadratic, its average over the prior's spread where it
-        is not), and one step serves every beam at once: the pose's three entries, then the
+        of the beams' Jacobians between x ± one σ of P along the variable (the Hessian
+        where the range is quadratic, its average over the spread where it is not), and one step serves every beam at once: the pose's three entries, then the
         x (and the y) coordinates of every (p+1)-th control point, which puts exactly one
         control point of each piece's window in each step. A beam the range model loses at
         a step counts 0 along it. The pairs' traces then read P only on the two beams'
@@ -251,8 +250,9 @@ class RangeModel:
         Args:
             beams: the beams to linearise (b of them); curves: the map's table.
             x: (n,) the state mean; laser_offset: (3,) the laser in the robot frame.
-            prior: (w, w) the prior covariance of the state entries ``work`` (w,) (the pose
-                and the beams' splines' control points: all the ranges depend on).
+            covariance: (w, w) P, on the state entries ``work`` (w,) (the pose and the
+                beams' splines' control points: all the ranges depend on); the filter
+                passes its first gain's posterior there (:meth:`SplineSLAM._update`).
             curvature: the estimator's error coordinates' own second-order terms,
                 ``curvature(index, G)`` → (b', L, L) or None, for the variables ``index``
                 (b', L) (−1: none) of the b' beams that hit at x and their gradients G
@@ -266,7 +266,7 @@ class RangeModel:
             lin = self.linearize(beams, curves, x, laser_offset)
             if lin is None:
                 return dataclasses.replace(beams, second_order=block)
-            index, hessians = self._local_hessians(beams, lin, curves, x, laser_offset, prior, work)
+            index, hessians = self._local_hessians(beams, lin, curves, x, laser_offset, covariance, work)
         finally:
             self.bearing_variance = bearing_variance
         if curvature is not None:
@@ -281,11 +281,11 @@ class RangeModel:
         position = np.full(x.shape[0], -1, dtype=np.intp)
         position[work] = np.arange(work.shape[0])
         local = position[np.maximum(index, 0)]
-        block[np.ix_(lin.beam, lin.beam)] = beam_kernels.half_pair_traces(hessians @ prior[local], local)
+        block[np.ix_(lin.beam, lin.beam)] = beam_kernels.half_pair_traces(hessians @ covariance[local], local)
         return dataclasses.replace(beams, second_order=block)
 
     def _local_hessians(self, beams: Beams, lin: Linearization, curves: MapCurves, x: np.ndarray,
-                        laser_offset: np.ndarray, prior: np.ndarray, work: np.ndarray
+                        laser_offset: np.ndarray, covariance: np.ndarray, work: np.ndarray
                         ) -> tuple[np.ndarray, np.ndarray]:
         """``(index (m, L), H (m, L, L))``: the variables of each of the m beams of ``lin``
         (the pose, then its piece's control points' x, then their y; −1 for a padded or
@@ -302,8 +302,8 @@ class RangeModel:
         step_of = np.concatenate([np.broadcast_to(np.arange(3), (m, 3)), 3 + window % p1, 3 + p1 + window % p1],
                                  axis=1)
         sigma = np.zeros(x.shape[0])
-        sigma[work] = np.sqrt(np.maximum(np.diag(prior), 0.0))
-        cp_rows = np.flatnonzero(np.isin(np.arange(curves.state_rows.shape[0]), window[real]))
+        sigma[work] = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+        cp_rows = np.unique(window[real])
         members = [np.array([k]) for k in range(3)]
         for coord in range(2):
             for r in range(p1):
@@ -408,4 +408,3 @@ class RangeModel:
         bend_kernels.scale_along_splines(H_c, lin.cols, beams.curve[lin.beam], labels, w, curves.state_rows,
                                          curves.table.cp_start)
         return dataclasses.replace(lin, H_c=H_c)
-
