@@ -240,9 +240,10 @@ class RangeModel:
         A range depends on the pose and on the p + 1 control points of the piece it hits
         only: its Hessian is (3 + 2(p+1))² on those variables. Each is a central difference
         of the beams' Jacobians between x ± one σ of P along the variable (the Hessian
-        where the range is quadratic, its average over the spread where it is not), and one step serves every beam at once: the pose's three entries, then the
-        x (and the y) coordinates of every (p+1)-th control point, which puts exactly one
-        control point of each piece's window in each step. A beam the range model loses at
+        where the range is quadratic, its average over the spread where it is not), and
+        one step serves every beam at once: the pose's three entries, then the x (and the
+        y) coordinates of every (p+1)-th control point, which puts exactly one control
+        point of each piece's window in each step. A beam the range model loses at
         a step counts 0 along it. The pairs' traces then read P only on the two beams'
         variables. Each beam's error is scaled by the factor :meth:`linearize` scales its
         row by for its bearing's σ at x (the row's second-order error scales with the row).
@@ -266,7 +267,7 @@ class RangeModel:
             lin = self.linearize(beams, curves, x, laser_offset)
             if lin is None:
                 return dataclasses.replace(beams, second_order=block)
-            index, hessians = self._local_hessians(beams, lin, curves, x, laser_offset, covariance, work)
+            index, local, hessians = self._local_hessians(beams, lin, curves, x, laser_offset, covariance, work)
         finally:
             self.bearing_variance = bearing_variance
         if curvature is not None:
@@ -278,18 +279,16 @@ class RangeModel:
                 hessians += extra
         if bearing_variance > 0.0:
             hessians *= self._bearing_scale(beams, lin.beam, lin.H_c, lin.residual, x, laser_offset)[:, None, None]
-        position = np.full(x.shape[0], -1, dtype=np.intp)
-        position[work] = np.arange(work.shape[0])
-        local = position[np.maximum(index, 0)]
         block[np.ix_(lin.beam, lin.beam)] = beam_kernels.half_pair_traces(hessians @ covariance[local], local)
         return dataclasses.replace(beams, second_order=block)
 
     def _local_hessians(self, beams: Beams, lin: Linearization, curves: MapCurves, x: np.ndarray,
                         laser_offset: np.ndarray, covariance: np.ndarray, work: np.ndarray
-                        ) -> tuple[np.ndarray, np.ndarray]:
-        """``(index (m, L), H (m, L, L))``: the variables of each of the m beams of ``lin``
-        (the pose, then its piece's control points' x, then their y; −1 for a padded or
-        fixed one) and its range's Hessian on them (1/m), symmetric; L = 3 + 2(p+1)."""
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(index (m, L), local (m, L), H (m, L, L))``: the variables of each of the m
+        beams of ``lin`` (the pose, then its piece's control points' x, then their y; −1 for
+        a padded or fixed one), their places in ``work`` (those of −1: any, their rows of H
+        are zero) and its range's Hessian on them (1/m), symmetric; L = 3 + 2(p+1)."""
         table, p1 = curves.table, curves.table.p + 1
         piece, _, _ = table.locate(beams.curve[lin.beam], lin.hit_t)
         window = table.window[piece]                                     # (m, p+1) control-point rows
@@ -310,7 +309,7 @@ class RangeModel:
                 members.append(curves.state_rows[cp_rows[cp_rows % p1 == r], coord])
         place = np.full(x.shape[0], -1, dtype=np.intp)
         place[work] = np.arange(work.shape[0])
-        local = place[np.maximum(index, 0)]                              # (m, L) columns of the Jacobian rows
+        local = place[np.maximum(index, 0)]                              # (m, L) places in work
         H = np.zeros((m, index.shape[1], index.shape[1]))
         for s, entries in enumerate(members):
             entries = entries[sigma[entries] > 0.0]
@@ -326,7 +325,7 @@ class RangeModel:
             H[beam, :, slot] = np.take_along_axis(diff, local, axis=1)[beam] / sigma[index[beam, slot]][:, None]
         H[index < 0] = 0.0
         H.transpose(0, 2, 1)[index < 0] = 0.0
-        return index, 0.5 * (H + H.transpose(0, 2, 1))
+        return index, local, 0.5 * (H + H.transpose(0, 2, 1))
 
     def _jacobian_rows(self, beams: Beams, curves: MapCurves, x: np.ndarray, laser_offset: np.ndarray,
                        place: np.ndarray, width: int) -> np.ndarray:
@@ -345,8 +344,8 @@ class RangeModel:
         """``lin`` with its rows whitened against the shared errors
         (:func:`beam_kernels.whiten_shared`, one group per map spline), so that the rows with
         noise R·I give the update, NIS and gains of the block noise; with the beams'
-        second-order rows (:meth:`with_second_order`) their error ½ tr(∇²h_i P ∇²h_j P) joins
-        that noise. ``lin`` itself when there is neither. Gate on the rows of ``lin`` with
+        second-order block (:meth:`with_second_order`) their error ½ tr(∇²h_i P ∇²h_j P)
+        joins that noise. ``lin`` itself when there is neither. Gate on the rows of ``lin`` with
         :attr:`row_variance`: a whitened row is no longer one beam."""
         if self.second_order and beams.second_order is not None:
             return self._whitened_full(beams, lin)
@@ -357,7 +356,7 @@ class RangeModel:
 
     def _whitened_full(self, beams: Beams, lin: Linearization) -> Linearization:
         """:meth:`whitened` with the second-order error: R = r I + the shared block + the
-        rows' :attr:`Beams.second_order`, whitened by its Cholesky factor (a dense (m, m)
+        beams' :attr:`Beams.second_order` block, whitened by its Cholesky factor (a dense (m, m)
         factorisation)."""
         ratio = beams.second_order[np.ix_(lin.beam, lin.beam)] / self.R
         if self.shared:
