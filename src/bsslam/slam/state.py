@@ -53,12 +53,16 @@ POSE = np.arange(3)
 ROW_PAD = 8
 
 #: Basis columns of the pending term before it is folded in. Larger means fewer passes over P
-#: but dearer reads (a² per row read).
-MAX_PENDING = 256
+#: but dearer reads (a² per row read, n·a per column). The fold's arithmetic (n²·a) is paid
+#: per column of the basis however often it happens, so a fold costs beyond it only its
+#: pass over P; 128 against 256 took the simulated corridor's scans at 1000–2000 dimensions
+#: from a median of 3.5 to 3.1 ms and a mean of 4.0–4.7 to 3.5–3.8 ms (one core, the same
+#: run; ``benchmarks/bench_filter.py --defaults``), and intel-rawodom's run 4–6 % sooner.
+MAX_PENDING = 128
 
 #: Eager entries (the pose and the entries appended since the last fold) before a fold.
 #: Each update costs about |E|²·k for their block and a·|E|·k for their coefficients.
-MAX_EAGER = 192
+MAX_EAGER = 128
 
 #: Rows of P per block when the pending factor is folded in: a block row of the product
 #: (b × n doubles) stays in the L2 cache while it is subtracted from P.
