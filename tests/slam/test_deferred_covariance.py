@@ -275,11 +275,10 @@ def test_random_sequences_of_operations_equal_the_dense_covariance():
         np.testing.assert_array_equal(state.P, state.P.T)
 
 
-def test_a_symmetric_low_rank_term_is_deferred_exactly():
-    """P ← P + U M Uᵀ (the invariant EKF's carried covariance) between updates, with eager
-    entries present, until the basis overflows (a fold) and once wider than the whole basis:
-    every read and the folded P equal the dense covariance; the pose's column from the basis
-    equals the dense one."""
+def test_a_shear_by_a_pose_entry_is_deferred_exactly():
+    """P ← A P Aᵀ, A = I + w e_kᵀ (the invariant EKF's carried covariance) between updates,
+    with eager entries present, until the basis overflows (a fold), and on a state of the
+    pose alone (no lazy room): every read and the folded P equal the dense covariance."""
     rng = np.random.default_rng(11)
     n = 80
     P = random_spd(rng, n)
@@ -291,21 +290,29 @@ def test_a_symmetric_low_rank_term_is_deferred_exactly():
     cross = J @ dense[:3]
     dense = np.block([[dense, cross.T], [cross, J @ dense[:3, :3] @ J.T + 0.01 * np.eye(4)]])
     probe = np.concatenate([probe, new])
-    for step in range(8):
+    folds = 0
+    for step in range(12):
         cols = np.array([0, 1, 2, 10 + step, 40 + step])
         W = rng.normal(size=(cols.size, 2)) * 0.05
+        before = state.pending_rank
         state.subtract_column_update(cols, W)
         dense = column_update(dense, cols, W)
-        U = rng.normal(size=(state.size, 2)) * 0.1
-        M = np.array([[0.3, 1.0], [1.0, 0.0]])
-        state.add_outer(U, M)
-        dense = dense + U @ M @ U.T
+        w = rng.normal(size=state.size) * 0.1
+        k = step % 3
+        state.shear(w, k)
+        folds += state.pending_rank < before + 1
+        A = np.eye(state.size)
+        A[:, k] += w
+        dense = A @ dense @ A.T
         assert_reads_match(state, dense, probe)
-        np.testing.assert_allclose(state.pose_column(2), dense[:, 2], atol=1e-12)
-    U = rng.normal(size=(state.size, 20)) * 0.05    # wider than the basis: straight into the base
-    M = np.diag(rng.uniform(0.1, 1.0, 20))
-    state.add_outer(U, M)
-    dense = dense + U @ M @ U.T
-    assert_reads_match(state, dense, probe)
+    assert folds >= 1, folds                    # the basis overflowed on the way
     np.testing.assert_allclose(state.P, dense, atol=1e-12)
     np.testing.assert_array_equal(state.P, state.P.T)
+    pose_only = JointState(np.zeros(3), random_spd(rng, 3))
+    w = rng.normal(size=3)
+    A = np.eye(3)
+    A[:, 2] += w
+    expected = A @ pose_only.P @ A.T
+    pose_only.shear(w, 2)
+    np.testing.assert_allclose(pose_only.pose_covariance, expected, atol=1e-14)
+    np.testing.assert_allclose(pose_only.P, expected, atol=1e-14)

@@ -19,7 +19,8 @@ invariant EKF is the paper's filter with three changes:
 
 * **after each update** the covariance is carried to the new mean: ``P ← A P Aᵀ`` with
   ``w = J Δx̂`` (a rank-two term over the whole state, ``w aᵀ + a wᵀ + P_φφ w wᵀ``,
-  ``a = P[:, φ]``, deferred into the compressed covariance like the update itself);
+  ``a = P[:, φ]``, deferred into the compressed covariance like the update itself:
+  :meth:`~bsslam.slam.state.JointState.shear`);
 * **within an update**, a range linearised at x_l (the iterated update's iterates) has the
   Jacobian ``H A(x̂ → x_l)``: the heading's column gains ``H J (x_l − x̂)``;
 * the Jacobian is first projected off N(x_l) (a no-op to rounding for the exact range
@@ -30,7 +31,7 @@ Prediction and map growth are the paper's: its motion Jacobian is exactly
 commute with rigid motions (Φ's and Ψ's rows sum to one), so they carry N onto N already.
 Then the information the filter holds never grows along N(x̂) at the current estimate.
 
-Cost over the paper's filter: two more columns of the deferred covariance term per scan
+Cost over the paper's filter: one more column of the deferred covariance term per scan
 (it is folded into P a little more often) and O(n) for w.
 """
 
@@ -39,9 +40,9 @@ from __future__ import annotations
 import numpy as np
 
 from bsslam.errors import FilterError
+from bsslam.slam.constraint_kernels import invariant_jacobian, invariant_null_space
 from bsslam.slam.ekf import StackedGain
 from bsslam.slam.estimator import CompressedEKF, Innovation, Noise
-from bsslam.slam.oc_ekf import project_out
 
 HEADING = 2
 
@@ -68,32 +69,22 @@ class InvariantEKF(CompressedEKF):
 
     def null_space(self, x: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """(c, 3) N(x) on ``cols``: global x, y translation and the rotation about the
-        origin (heading 1, positions J x, m per rad)."""
-        cols = np.asarray(cols, dtype=np.intp)
-        N = np.zeros((cols.shape[0], 3))
-        sign = self._sign[cols]
-        N[sign < 0, 0] = 1.0
-        N[sign > 0, 1] = 1.0
-        N[:, 2] = np.where(cols == HEADING, 1.0, self.turn(x, cols))
-        return N
+        origin (heading 1, positions J x, m per rad); compiled:
+        :func:`~bsslam.slam.constraint_kernels.invariant_null_space`."""
+        return invariant_null_space(np.asarray(cols, dtype=np.intp), np.asarray(x, dtype=float), self._sign, self._mate)
 
     def constrain(self, cols: np.ndarray, H: np.ndarray, x: np.ndarray | None = None
                   ) -> tuple[np.ndarray, np.ndarray]:
         """(cols', H') for the model's H (m, c) on ``cols`` linearised at ``x`` (the mean
         when None): H projected off N(x) when it has the pose's columns (a range's rows;
         rows on the map alone, a spline's bend, are invariant), then H A(x̂ → x), whose
-        heading column (added when missing) gains H J (x − x̂)."""
-        x = self.x if x is None else x
-        cols = np.asarray(cols, dtype=np.intp)
-        H = np.array(H, dtype=float)
-        at = np.flatnonzero(cols == HEADING)
-        if at.size:
-            H = project_out(H, self.null_space(x, cols))
-        else:
-            cols = np.concatenate([cols, [HEADING]])
-            H = np.concatenate([H, np.zeros((H.shape[0], 1))], axis=1)
-            at = np.array([cols.shape[0] - 1])
-        H[:, at[0]] += H @ self.turn(x - self.x, cols)
+        heading column (added when missing) gains H J (x − x̂); compiled:
+        :func:`~bsslam.slam.constraint_kernels.invariant_jacobian`."""
+        x = self.x if x is None else np.asarray(x, dtype=float)
+        cols, H, ok = invariant_jacobian(np.asarray(cols, dtype=np.intp), np.ascontiguousarray(H, dtype=float),
+                                         x, self.x, self._sign, self._mate)
+        if not ok:
+            raise FilterError("unobservable directions not independent on the touched columns")
         return cols, H
 
     def error_curvature(self, index: np.ndarray, G: np.ndarray, x: np.ndarray | None = None) -> np.ndarray:
@@ -150,9 +141,7 @@ class InvariantEKF(CompressedEKF):
         innovation = super().update(cols, H, residual, R, gain)
         w = self.turn(self.x - before)
         if np.any(w):
-            a = self.joint.pose_column(HEADING)
-            M = np.array([[a[HEADING], 1.0], [1.0, 0.0]])
-            self.joint.add_outer(np.column_stack([w, a]), M)   # P ← A P Aᵀ, A = I + w e_φᵀ
+            self.joint.shear(w, HEADING)   # P ← A P Aᵀ, A = I + w e_φᵀ
         return innovation
 
     def move_pose(self, pose: np.ndarray, F: np.ndarray, Q_pose: np.ndarray) -> None:

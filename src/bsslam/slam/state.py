@@ -397,43 +397,45 @@ class JointState:
         self._P[:n, eager] = R.T
         self._reset()
 
-    def pose_column(self, k: int) -> np.ndarray:
-        """(n,) P[:, k] for a pose entry k (0, 1, 2): the lazy rows are B_L K[:, k] (one
-        matrix-vector product on the basis, no gather), the eager rows P_EE[:, k]."""
-        n, a, e = self.size, self._a, self._e
-        out = self._B[:n, :a] @ self._K[:a, k]
-        out[self._E[:e]] = self._PE[:e, k]
-        return out
-
-    def add_outer(self, U: np.ndarray, M: np.ndarray) -> None:
-        """P ← P + U M Uᵀ for U (n, r) and a symmetric M (r, r), deferred like an update:
-        U's lazy rows join the basis as r new (unregistered) columns with −M in G, its eager
-        rows go into K and the eager block. O(n·r + a·|E|·r); folds first when the basis has
-        no room."""
-        U = np.asarray(U, dtype=float)
-        M = np.asarray(M, dtype=float)
-        n, r = self.size, U.shape[1]
-        if U.shape[0] != n or M.shape != (r, r):
-            raise FilterError(f"add_outer: U {U.shape} / M {M.shape} do not fit n={n}")
-        if self._a + r > min(self._B.shape[1], n):
+    def shear(self, w: np.ndarray, k: int) -> None:
+        """P ← A P Aᵀ for A = I + w e_kᵀ, w (n,) and k a pose entry (0, 1, 2): the state's
+        entries each move by their w times the pose entry k's (the invariant EKF carries its
+        covariance to a corrected mean this way). That is P + w aᵀ + a wᵀ + P_kk w wᵀ with
+        a = P[:, k], deferred like an update: the lazy rows of a are B_L K[:, k] already,
+        so only w's lazy rows join the basis, as one new (unregistered) column whose
+        coefficients in G couple it to the basis through K[:, k]; the eager rows go into K
+        and the eager block. O(n + a·|E| + |E|²); folds first when the basis has no room."""
+        w = np.asarray(w, dtype=float)
+        n = self.size
+        if w.shape != (n,) or k not in (0, 1, 2):
+            raise FilterError(f"shear: w {w.shape} / pose entry {k} do not fit n={n}")
+        if self._a + 1 > min(self._B.shape[1], n):
             self.fold()
-            if self._a + r > min(self._B.shape[1], n):   # wider than the basis: into the base
-                V = U @ M
-                self.base[:] += 0.5 * (V @ U.T + U @ V.T)
+            if self._a + 1 > min(self._B.shape[1], n):   # no lazy room (n ≤ 3): into the base
+                a = self.base[:, k].copy()
+                V = np.outer(w, a + 0.5 * a[k] * w)
+                self.base[:] += V + V.T
                 self._reset()
                 return
-        a0, a, e = self._a, self._a + r, self._e
+        a0, e = self._a, self._e
         eager = self._E[:e]
-        U_E = U[eager]
-        self._B[:n, a0:a] = U
-        self._B[eager, a0:a] = 0.0        # eager rows of the basis are zero
-        self._G[a0:a, : a] = 0.0
-        self._G[: a, a0:a] = 0.0
-        self._G[a0:a, a0:a] = -0.5 * (M + M.T)
-        self._K[a0:a, :e] = M @ U_E.T
-        T = U_E @ M @ U_E.T
-        self._PE[:e, :e] += 0.5 * (T + T.T)
-        self._a = a
+        pk = self._epos[k]
+        coeffs = self._K[:a0, pk].copy()        # P[L, k] = B_L coeffs
+        a_E = self._PE[:e, pk].copy()           # P[E, k]
+        p = self._PE[pk, pk]
+        w_E = w[eager]
+        self._B[:n, a0] = w
+        self._B[eager, a0] = 0.0                # eager rows of the basis are zero
+        # − [B u] G' [B u]ᵀ gains B c uᵀ + u cᵀ Bᵀ + p u uᵀ
+        self._G[a0, :a0] = -coeffs
+        self._G[:a0, a0] = -coeffs
+        self._G[a0, a0] = -p
+        # P[L, E] gains u (a_E + p w_E)ᵀ + B_L c w_Eᵀ
+        self._K[:a0, :e] += np.outer(coeffs, w_E)
+        self._K[a0, :e] = a_E + p * w_E
+        V = np.outer(w_E, a_E + 0.5 * p * w_E)
+        self._PE[:e, :e] += V + V.T
+        self._a = a0 + 1
         self._pending = True
         self._forget_pending_rows()
 
