@@ -7,6 +7,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from constraint_oracle import project_out
 from dense_ekf import DenseEKF, run_in_lockstep
 from scipy.stats import chi2
 from test_oc_ekf import RecordedEKF, heading_nees, run_filter, violations
@@ -17,7 +18,6 @@ from bsslam.se2 import between
 from bsslam.sim import SimConfig, get_world, simulate
 from bsslam.slam import SplineSLAM
 from bsslam.slam.invariant_ekf import InvariantEKF
-from bsslam.slam.oc_ekf import project_out
 
 
 class RecordedInvariant(InvariantEKF):

@@ -58,10 +58,10 @@ violating it.
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg.lapack import dposv
 
 from bsslam.errors import FilterError
 from bsslam.se2 import compose, compose_jacobians
+from bsslam.slam.constraint_kernels import project_off
 from bsslam.slam.estimator import CompressedEKF
 
 
@@ -73,12 +73,12 @@ def pose_null_rows(pose: np.ndarray) -> np.ndarray:
 
 def project_out(H_c: np.ndarray, N_c: np.ndarray) -> np.ndarray:
     """(m, c) H − H N (Nᵀ N)⁻¹ Nᵀ: the rows of H (m, c) projected onto the orthogonal
-    complement of the columns of N (c, 3), which must be independent."""
-    # LAPACK directly: numpy's solve front end cost more than the rest of the projection
-    _, coeffs, info = dposv(N_c.T @ N_c, (H_c @ N_c).T)
-    if info != 0:
-        raise FilterError(f"unobservable directions not independent on the touched columns (posv info {info})")
-    return H_c - coeffs.T @ N_c.T
+    complement of the columns of N (c, 3), which must be independent (a new array);
+    compiled: :func:`~bsslam.slam.constraint_kernels.project_off`."""
+    H = np.array(H_c, dtype=float, order="C")
+    if not project_off(H, np.ascontiguousarray(N_c, dtype=float)):
+        raise FilterError("unobservable directions not independent on the touched columns")
+    return H
 
 
 class NullSpaceTracking:
