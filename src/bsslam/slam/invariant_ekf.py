@@ -40,11 +40,9 @@ from __future__ import annotations
 import numpy as np
 
 from bsslam.errors import FilterError
-from bsslam.slam.constraint_kernels import invariant_jacobian, invariant_null_space
+from bsslam.slam.constraint_kernels import HEADING, invariant_jacobian, invariant_null_space
 from bsslam.slam.ekf import StackedGain
 from bsslam.slam.estimator import CompressedEKF, Innovation, Noise
-
-HEADING = 2
 
 
 class InvariantEKF(CompressedEKF):
