@@ -72,6 +72,8 @@ def test_a_gain_on_working_rows_corrects_them_and_the_whole_state_like_the_dense
     columns = CovarianceColumns(state, work)
     np.testing.assert_allclose(columns.get(COLS), P[np.ix_(work, COLS)], atol=1e-12)
     np.testing.assert_allclose(columns.block(COLS), P[np.ix_(COLS, COLS)], atol=1e-12)
+    # the first request read every working row; the rest are served from it
+    np.testing.assert_allclose(columns.get(work), P[np.ix_(work, work)], atol=1e-12)
     nu = rng.normal(size=m) * 0.01
     gain = StackedGain(columns, COLS, H_c, R)
     K = P @ H.T @ np.linalg.inv(H @ P @ H.T + R * np.eye(m))
