@@ -64,34 +64,3 @@ def test_the_default_median_trades_refused_good_extensions_for_power_against_a_f
     biased = noise + bump
     assert sum(slam._extension_fits(d, 3) for d in biased) < 60
     assert sum(lenient._extension_fits(d, 3) for d in biased) > 300
-
-
-def _curve(xs, ys, length):
-    from bsslam.spline import BSplineCurve
-    n = len(xs)
-    knots = np.r_[[0.0] * 3, np.linspace(0.0, length, n - 2), [length] * 3]
-    return BSplineCurve(np.column_stack([xs, ys]), knots, 3)
-
-
-def test_an_extension_that_folds_back_is_refused():
-    """An extension must run outward all along its new stretch: a wall continued straight
-    passes, on either side; one whose fit overshoots its data's end and comes back along
-    the wall (every point on the wall, so the distance check passes) does not."""
-    from bsslam.slam.filter import _runs_outward
-    old = _curve(np.linspace(0.0, 5.0, 6), np.zeros(6), 5.0)
-    straight = _curve(np.linspace(0.0, 6.0, 8), np.zeros(8), 6.0)
-    folded = _curve(np.r_[np.linspace(0.0, 5.0, 6), 6.4, 5.6], np.zeros(8), 6.0)
-    assert _runs_outward(old, straight, "right")
-    assert not _runs_outward(old, folded, "right")
-    # the left side: the old curve's domain [1, 6] extended down to [0, 6]
-    old_left = _shifted(_curve(np.linspace(1.0, 6.0, 6), np.zeros(6), 5.0), 1.0)
-    straight_left = _curve(np.linspace(0.0, 6.0, 8), np.zeros(8), 6.0)
-    folded_left = _curve(np.r_[0.4, -0.4, np.linspace(1.0, 6.0, 6)], np.zeros(8), 6.0)
-    assert _runs_outward(old_left, straight_left, "left")
-    assert not _runs_outward(old_left, folded_left, "left")
-
-
-def _shifted(curve, dt):
-    """``curve`` with its parameter moved by dt (m): the same points at t + dt."""
-    from bsslam.spline import BSplineCurve
-    return BSplineCurve(curve.control_points, curve.knots + dt, curve.degree)

@@ -11,7 +11,7 @@ from spline_cases import curves
 
 from bsslam.errors import FitError, SplineError
 from bsslam.spline import BSplineCurve, chord_length_parameters, clamped_knots, fit_curve
-from bsslam.spline.extend import continuation_parameters, extend_curve, unclamp
+from bsslam.spline.extend import continuation_parameters, extend_curve, runs_outward, unclamp
 
 SETTINGS = settings(max_examples=50, deadline=None)
 SIDES = ("left", "right")
@@ -218,3 +218,31 @@ def test_no_point_past_the_end_gives_no_parameters():
     curve, _, _, _ = _old_and_new("right", 3)
     beyond, params = continuation_parameters(curve, "right", _arc(np.linspace(0.5, 0.9, 5)))
     assert not beyond.any() and params.shape == (0,)
+
+
+def _curve(xs, ys, length):
+    n = len(xs)
+    knots = np.r_[[0.0] * 3, np.linspace(0.0, length, n - 2), [length] * 3]
+    return BSplineCurve(np.column_stack([xs, ys]), knots, 3)
+
+
+def test_an_extension_that_folds_back_is_refused():
+    """An extension must run outward all along its new stretch: a wall continued straight
+    passes, on either side; one whose fit overshoots its data's end and comes back along
+    the wall (every point on the wall, so the distance check passes) does not."""
+    old = _curve(np.linspace(0.0, 5.0, 6), np.zeros(6), 5.0)
+    straight = _curve(np.linspace(0.0, 6.0, 8), np.zeros(8), 6.0)
+    folded = _curve(np.r_[np.linspace(0.0, 5.0, 6), 6.4, 5.6], np.zeros(8), 6.0)
+    assert runs_outward(old, straight, "right")
+    assert not runs_outward(old, folded, "right")
+    # the left side: the old curve's domain [1, 6] extended down to [0, 6]
+    old_left = _shifted(_curve(np.linspace(1.0, 6.0, 6), np.zeros(6), 5.0), 1.0)
+    straight_left = _curve(np.linspace(0.0, 6.0, 8), np.zeros(8), 6.0)
+    folded_left = _curve(np.r_[0.4, -0.4, np.linspace(1.0, 6.0, 6)], np.zeros(8), 6.0)
+    assert runs_outward(old_left, straight_left, "left")
+    assert not runs_outward(old_left, folded_left, "left")
+
+
+def _shifted(curve, dt):
+    """``curve`` with its parameter moved by dt (m): the same points at t + dt."""
+    return BSplineCurve(curve.control_points, curve.knots + dt, curve.degree)

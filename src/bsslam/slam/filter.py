@@ -31,7 +31,7 @@ from bsslam.slam.motion import motion_noise
 from bsslam.slam.oc_ekf import OCEKF
 from bsslam.slam.spline_map import SplineMap
 from bsslam.slam.state import POSE
-from bsslam.spline import BSplineCurve, FitResult, continuation_parameters, extend_curve, fit_curve
+from bsslam.spline import BSplineCurve, FitResult, continuation_parameters, extend_curve, fit_curve, runs_outward
 from bsslam.spline.batch import closest_points_batch, curve_table
 
 
@@ -483,7 +483,7 @@ class SplineSLAM:
         # the fit check, by the compiled search (closest_point's sampling, starts and Newton)
         fitted = curve_table([ext.curve.knots], [ext.curve.degree]).with_control_points(ext.curve.control_points)
         _, _, dist = closest_points_batch(fitted, np.zeros(bp.points.shape[0], dtype=np.intp), bp.points)
-        if not self._extension_fits(dist, ext.n_added) or not _runs_outward(curve, ext.curve, side):
+        if not self._extension_fits(dist, ext.n_added) or not runs_outward(curve, ext.curve, side):
             return False
         n_old, m = curve.n_control, ext.n_added
         new_rows = ext.psi[n_old:] if side == "right" else ext.psi[:m]
@@ -546,21 +546,3 @@ class SplineSLAM:
         mapping = self.state.remove(rows) if rows is not None else None
         self.spline_map.remove(feature_ids, mapping)
 
-
-def _runs_outward(old: BSplineCurve, new: BSplineCurve, side: str, samples: int = 16) -> bool:
-    """Whether the extended curve ``new`` runs outward all along the stretch it adds to
-    ``old`` on ``side``: its tangent keeps a positive component along that stretch's chord.
-
-    A fit that overshoots the new data's end and folds back passes the distance check (the
-    fold lies along the wall) but leaves an end pointing back into the wall. The next
-    scan's points beyond it then find their closest map point at the fold, a metre from
-    the end they continue, the match fails, and the wall is mapped a second time over
-    itself (the simulated long corridor, seed 0: an extension at scan 34 overshot to
-    54.75 m and came back to 54.59; from scan 37 a new spline lay 4 m over it)."""
-    lo, hi = old.domain
-    new_lo, new_hi = new.domain
-    a, b = (hi, new_hi) if side == "right" else (new_lo, lo)
-    ends = new.evaluate(np.array([a, b]))
-    chord = ends[1] - ends[0]
-    tangents = new.evaluate(np.linspace(a, b, samples), der=1)
-    return bool(np.all(tangents @ chord > 0.0))

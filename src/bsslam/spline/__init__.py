@@ -7,7 +7,7 @@ Everything speaks in *degree* p (order κ = p + 1); points are (m, 2) arrays in 
 from bsslam.spline.basis import basis_functions, collocation_matrix, find_span
 from bsslam.spline.closest import closest_point
 from bsslam.spline.curve import BSplineCurve
-from bsslam.spline.extend import Extension, continuation_parameters, extend_curve, unclamp
+from bsslam.spline.extend import Extension, continuation_parameters, extend_curve, runs_outward, unclamp
 from bsslam.spline.fit import FitResult, chord_length_parameters, fit_curve
 from bsslam.spline.intersect import RayHits, intersect_rays
 from bsslam.spline.knots import clamped_knots, knot_domain, n_control_points, uniform_knots
@@ -31,6 +31,7 @@ __all__ = [
     "intersect_rays",
     "knot_domain",
     "n_control_points",
+    "runs_outward",
     "unclamp",
     "uniform_knots",
 ]

@@ -193,3 +193,24 @@ def extend_curve(curve: BSplineCurve, side: str, points: object, params: object,
     psi[new_rows, n_old:] = g
     control = psi @ np.concatenate([curve.control_points, pts])
     return Extension(BSplineCurve.unchecked(control, knots, p), psi, spans, side, transform)
+
+
+def runs_outward(old: BSplineCurve, new: BSplineCurve, side: str, samples: int = 16) -> bool:
+    """Whether the extended curve ``new`` runs outward all along the stretch it adds to
+    ``old`` on ``side``: its tangent keeps a positive component along that stretch's chord.
+
+    A fit that overshoots the new data's end and folds back passes the distance check (the
+    fold lies along the wall) but leaves an end pointing back into the wall. The next
+    scan's points beyond it then find their closest map point at the fold, a metre from
+    the end they continue, the match fails, and the wall is mapped a second time over
+    itself (the simulated long corridor, seed 0: an extension at scan 34 overshot to
+    54.75 m and came back to 54.59; from scan 37 a new spline lay 4 m over it). The
+    filter refuses such an extension (:meth:`bsslam.slam.filter.SplineSLAM._extend_feature`)."""
+    _check_side(side)
+    lo, hi = old.domain
+    new_lo, new_hi = new.domain
+    a, b = (hi, new_hi) if side == "right" else (new_lo, lo)
+    ends = new.evaluate(np.array([a, b]))
+    chord = ends[1] - ends[0]
+    tangents = new.evaluate(np.linspace(a, b, samples), der=1)
+    return bool(np.all(tangents @ chord > 0.0))
