@@ -871,9 +871,10 @@ def consistency(variant: Variant = typer.Option(..., help="Which filter variant.
                 estimator: Optional[Estimator] = typer.Option(
                     None, help=ESTIMATOR_HELP + " [default: the --config file's, else ekf]", show_default=False),
                 significant_bends: Optional[bool] = typer.Option(
-                    None, help="What a map spline says along itself limited to its significant bend "
-                    "(observation.significant_bends_only); off: the paper's update. [default: the --config "
-                    "file's, else off]", show_default=False),
+                    None, help="What a map spline says along itself limited to its significant bend, and what "
+                    "a scan's walls say along their common direction to their significant angles "
+                    "(observation.significant_bends_only and significant_wall_angles); off: the paper's update. "
+                    "[default: the --config file's, else off]", show_default=False),
                 config_file: Optional[Path] = typer.Option(
                     None, "--config", help="YAML configuration the variant starts from (e.g. observation "
                     "noise); the variant's own settings and the simulator's noise take precedence."),
@@ -902,7 +903,8 @@ def consistency(variant: Variant = typer.Option(..., help="Which filter variant.
     if estimator is not None:
         base = base.replace(estimator=estimator.value)
     if significant_bends is not None:
-        base = base.replace(observation=dataclasses.replace(base.observation, significant_bends_only=significant_bends))
+        base = base.replace(observation=dataclasses.replace(base.observation, significant_bends_only=significant_bends,
+                                                            significant_wall_angles=significant_bends))
     try:
         sim = scaled_noise(range_scale=range_noise_scale, translation_scale=translation_noise_scale,
                            heading_scale=heading_noise_scale)
@@ -911,6 +913,7 @@ def consistency(variant: Variant = typer.Option(..., help="Which filter variant.
     settings = {"experiment": "consistency", "variant": variant.value, "runs": runs, "seed": seed, "world": world,
                 "steps": steps, "estimator": base.estimator,
                 "significant_bends": base.observation.significant_bends_only,
+                "significant_wall_angles": base.observation.significant_wall_angles,
                 "config": str(config_file) if config_file else None,
                 "noise_scales": {"range": range_noise_scale, "translation": translation_noise_scale,
                                  "heading": heading_noise_scale}}

@@ -95,7 +95,7 @@ def test_projection_annihilates_the_null_space_and_nothing_else():
     np.testing.assert_allclose(N @ A, (H - Hs).T, atol=1e-12)
 
 
-@pytest.mark.parametrize("world, seed", [("rounded-room", 1), ("corridor-loop", 2)])
+@pytest.mark.parametrize("world, seed", [("rounded-room", 2), ("corridor-loop", 2)])
 def test_oc_ekf_keeps_the_null_space_where_the_ekf_breaks_it(world, seed):
     """Random scans (two worlds, seeded) with extension and pruning: every Jacobian of the
     OC-EKF annihilates N and every prediction maps N_k onto N_{k+1}, to rounding; the paper's

@@ -65,11 +65,11 @@ def scaled_noise(sim: SimConfig | None = None, range_scale: float = 1.0, transla
 
 def paper_filter(config: SLAMConfig) -> SLAMConfig:
     """``config`` with the paper's filter: its EKF (``estimator: ekf``) and its update, every
-    beam's full Jacobian (``observation.significant_bends_only`` off). ``bsslam
-    experiment`` starts from it unless given a configuration, so the paper's figures
-    reproduce whatever the library's defaults."""
-    return config.replace(estimator="ekf",
-                          observation=dataclasses.replace(config.observation, significant_bends_only=False))
+    beam's full Jacobian (``observation.significant_bends_only`` and
+    ``significant_wall_angles`` off). ``bsslam experiment`` starts from it unless given a
+    configuration, so the paper's figures reproduce whatever the library's defaults."""
+    return config.replace(estimator="ekf", observation=dataclasses.replace(
+        config.observation, significant_bends_only=False, significant_wall_angles=False))
 
 
 def simulation_config(config: SLAMConfig, sim: SimConfig | None = None) -> SLAMConfig:

@@ -1,10 +1,11 @@
 """Compiled steps of limiting what a map spline says along itself to its significant bend
 (:mod:`bsslam.slam.bends`): which splines are weighed and where their hits lie
-(:func:`bend_groups`), the angle each turns between them and its gradient
-(:func:`tangent_turns`), those gradients as rows over the state (:func:`bend_gradient_rows`)
-and the Jacobian's rows scaled along their splines (:func:`scale_along_splines`). Written as
-numpy they were a few dozen small array calls per linearisation, about a fifth of a
-simulated run's time; the numpy forms are the oracles in ``tests/slam/test_bends.py``.
+(:func:`hit_groups`), the angle each turns between them and its gradient
+(:func:`tangent_turns`), those gradients as rows over the state (:func:`gradient_rows`)
+and the Jacobian's rows scaled along their splines or along one direction for all of them
+(:func:`scale_along_splines`, :func:`scale_along`). Written as numpy they were a few dozen
+small array calls per linearisation, about a fifth of a simulated run's time; the numpy
+forms are the oracles in ``tests/slam/test_bends.py``.
 """
 
 from __future__ import annotations
@@ -78,11 +79,9 @@ def tangent_turns(power_basis, window, real, piece, u, control_points):
 @jit
 def scale_along_splines(H_c, cols, group, labels, weights, state_rows, cp_start):
     """Scale, in place, the part of each weighted spline's Jacobian rows along the spline's
-    mean tangent (over its rows) by its weight (:mod:`bsslam.slam.bends`).
-
-    For every row ∂z/∂(x, y) = g and ∂z/∂(x_j, y_j) = −β_j g (paper (22)–(27)), so g is
-    scaled in both: the robot and the spline moved along the spline alike. One pass over
-    the rows; the numpy form is the oracle in ``tests/slam/test_bends.py``.
+    mean tangent (over its rows) by its weight (:mod:`bsslam.slam.bends`):
+    :func:`scale_along` with each spline's :func:`mean_tangents`. The numpy form is the
+    oracle in ``tests/slam/test_bends.py``.
 
     Args:
         H_c: (m, c) the stacked Jacobian on ``cols`` (c,) (state indices, the pose's x, y
@@ -92,31 +91,62 @@ def scale_along_splines(H_c, cols, group, labels, weights, state_rows, cp_start)
         state_rows: (N, 2) the state indices of every curve's control points' x and y, curve
             c at rows ``cp_start[c] … cp_start[c+1]−1`` (:class:`~bsslam.slam.map_curves.MapCurves`).
     """
-    m = H_c.shape[0]
-    n_labels = labels.shape[0]
+    scale_along(H_c, cols, group, labels, mean_tangents(H_c, group, labels), weights, state_rows, cp_start)
+
+
+@jit
+def _label_slots(group, labels):
+    """(top,) the place of each curve index in ``labels`` (−1 for the others), for every
+    index in ``group`` and ``labels``."""
     top = 0
-    for i in range(m):
+    for i in range(group.shape[0]):
         top = max(top, group[i] + 1)
-    for s in range(n_labels):
+    for s in range(labels.shape[0]):
         top = max(top, labels[s] + 1)
     slot_of = np.full(top, -1, dtype=np.intp)
-    for s in range(n_labels):
+    for s in range(labels.shape[0]):
         slot_of[labels[s]] = s
-    normal = np.zeros((n_labels, 2))
-    for i in range(m):
+    return slot_of
+
+
+@jit
+def mean_tangents(H_c, group, labels):
+    """(L, 2) the unit mean tangent of each of the curves ``labels`` over its rows of
+    ``H_c`` (m, c): the mean of its rows' unit normals g/|g| (g = the first two columns)
+    turned a quarter left."""
+    slot_of = _label_slots(group, labels)
+    normal = np.zeros((labels.shape[0], 2))
+    for i in range(H_c.shape[0]):
         s = slot_of[group[i]]
         if s >= 0:
             norm = np.sqrt(H_c[i, 0] * H_c[i, 0] + H_c[i, 1] * H_c[i, 1])
             normal[s, 0] += H_c[i, 0] / norm
             normal[s, 1] += H_c[i, 1] / norm
-    for s in range(n_labels):
+    tangent = np.empty((labels.shape[0], 2))
+    for s in range(labels.shape[0]):
         norm = np.sqrt(normal[s, 0] * normal[s, 0] + normal[s, 1] * normal[s, 1])
-        normal[s, 0] /= norm
-        normal[s, 1] /= norm
+        tangent[s, 0] = -normal[s, 1] / norm
+        tangent[s, 1] = normal[s, 0] / norm
+    return tangent
+
+
+@jit
+def scale_along(H_c, cols, group, labels, tangents, weights, state_rows, cp_start):
+    """Scale, in place, the part of the Jacobian rows of each curve of ``labels`` along its
+    unit direction ``tangents`` (L, 2) by its weight ``weights`` (L,) (rows of other curves
+    are left alone). For every row ∂z/∂(x, y) = g and ∂z/∂(x_j, y_j) = −β_j g (paper
+    (22)–(27)), so g is scaled in both: the robot and the spline moved along the direction
+    alike, which no range sees before or after. One pass over the rows.
+
+    Args: as :func:`scale_along_splines`; every labelled curve's control points must be in
+    the state (``state_rows`` ≥ 0).
+    """
+    m = H_c.shape[0]
+    slot_of = _label_slots(group, labels)
     size = 0
     for k in range(cols.shape[0]):
         size = max(size, cols[k] + 1)
-    for s in range(n_labels):
+    for s in range(labels.shape[0]):
         for k in range(cp_start[labels[s]], cp_start[labels[s] + 1]):
             size = max(size, state_rows[k, 0] + 1, state_rows[k, 1] + 1)
     position = np.full(size, -1, dtype=np.intp)
@@ -129,8 +159,8 @@ def scale_along_splines(H_c, cols, group, labels, weights, state_rows, cp_start)
         gx = H_c[i, 0]
         gy = H_c[i, 1]
         g2 = gx * gx + gy * gy
-        tx = -normal[s, 1]
-        ty = normal[s, 0]
+        tx = tangents[s, 0]
+        ty = tangents[s, 1]
         removed = (1.0 - weights[s]) * (gx * tx + gy * ty)
         shift_x = removed * tx
         shift_y = removed * ty
@@ -148,60 +178,72 @@ def scale_along_splines(H_c, cols, group, labels, weights, state_rows, cp_start)
 
 
 @jit
-def bend_groups(group, hit_t, first_state_row):
-    """The map splines whose bends are weighed (:mod:`bsslam.slam.bends`): those with two
-    rows or more whose control points are in the state, and their extreme hits.
+def hit_groups(group, hit_t, H_c, first_state_row):
+    """The map splines a scan's rows hit whose control points are in the state, their
+    extreme hits, their rows and what their rows weigh.
 
     Args:
         group: (m,) each row's spline (its curve index ≥ 0); hit_t: (m,) where each row's
-            beam hits its spline (m).
+            beam hits its spline (m); H_c: (m, c) the rows, ∂z/∂(x, y) = g first.
         first_state_row: (C,) the state index of each curve's first control point's x (−1
             for the fixed control points of localisation mode).
 
     Returns:
-        ``(labels (L,), t_first (L,), t_last (L,))`` in increasing curve order.
+        ``(labels (L,), t_first (L,), t_last (L,), count (L,), weight (L,))`` in increasing
+        curve order: count the rows of each, weight Σ |g|² over them.
     """
     m = group.shape[0]
     top = 0
     for i in range(m):
         top = max(top, group[i] + 1)
     count = np.zeros(top, dtype=np.intp)
+    weight = np.zeros(top)
     lo = np.full(top, np.inf)
     hi = np.full(top, -np.inf)
     for i in range(m):
         c = group[i]
         count[c] += 1
+        weight[c] += H_c[i, 0] * H_c[i, 0] + H_c[i, 1] * H_c[i, 1]
         lo[c] = min(lo[c], hit_t[i])
         hi[c] = max(hi[c], hit_t[i])
     n = 0
     for c in range(top):
-        if count[c] >= 2 and first_state_row[c] >= 0:
+        if count[c] >= 1 and first_state_row[c] >= 0:
             n += 1
     labels = np.empty(n, dtype=np.intp)
     t_first = np.empty(n)
     t_last = np.empty(n)
+    rows = np.empty(n, dtype=np.intp)
+    weights = np.empty(n)
     n = 0
     for c in range(top):
-        if count[c] >= 2 and first_state_row[c] >= 0:
+        if count[c] >= 1 and first_state_row[c] >= 0:
             labels[n] = c
             t_first[n] = lo[c]
             t_last[n] = hi[c]
+            rows[n] = count[c]
+            weights[n] = weight[c]
             n += 1
-    return labels, t_first, t_last
+    return labels, t_first, t_last, rows, weights
 
 
 @jit
-def bend_gradient_rows(union, state_index, grad):
-    """The bends' gradients as rows over the state indices ``union`` (k,) (sorted, holding
-    every index of ``state_index``): A (g, k), A[i, union == s] the sum of ``grad[i]``'s
-    entries at state index s.
+def gradient_rows(union, state_index, grad, first_weight, last_weight):
+    """Gradients as rows over the state indices ``union`` (k,) (sorted, holding every index
+    of ``state_index``): A (g, k), A[i, union == s] the weighted sum of ``grad[i]``'s
+    entries at state index s, the first half of each row's entries (the first parameter's
+    window of :func:`tangent_turns`) weighted by ``first_weight``, the second by
+    ``last_weight`` (1, 1: the bends; −½, ½: the mean of the two tangents' angles).
 
     Args:
-        state_index: (g, r) the state index of each gradient entry; grad: (g, r) its value.
+        state_index: (g, r) the state index of each gradient entry, r even; grad: (g, r)
+            its value.
     """
     g, r = state_index.shape
+    half = r // 2
     A = np.zeros((g, union.shape[0]))
     for i in range(g):
         for j in range(r):
-            A[i, np.searchsorted(union, state_index[i, j])] += grad[i, j]
+            weight = first_weight if j < half else last_weight
+            A[i, np.searchsorted(union, state_index[i, j])] += weight * grad[i, j]
     return A

@@ -19,6 +19,20 @@ the spline turns between its first and last hit and σ² its variance under the 
 covariance (the spline's shape and its correlation with everything else): a straight wall
 (Δθ within its noise) gives nothing along itself; a corner or a curved wall (Δθ ≫ σ) keeps
 all it has. w is continuous in the data, so no tiny change of the input flips it.
+
+The same holds between the walls of one scan. Two straight walls a few milliradians from
+parallel say, to first order, where along them the robot is (moving along the corridor
+brings it nearer one and farther from the other); but the walls' relative tilt is their
+fits' noise, and with the large along-corridor prior the linearised update reads it as
+information (the simulated long corridor: the estimate pushed ahead by about 4 mm a step,
+docs/consistency.md, "Between the walls"). So, after the per-spline weights, the scan's
+weakest direction e (the smaller eigenvector of Σ g gᵀ over its rows, g = ∂z/∂(x, y)) is
+weighed the same way: its information S = λ_min against what walls truly parallel would
+give it through their directions' noise, N = Σ_j I_j Var(ψ_j), ψ_j the mean tangent angle of
+wall j less the walls' I-weighted mean (I_j = Σ |g|² over its rows), and what every row says
+along e is scaled by w = max(0, 1 − N/S) (:func:`wall_angle_weight`). A corner, an arc or a
+wall across the corridor in view gives S ≫ N and keeps everything; parallel walls alone
+give S ≈ N and say little along themselves.
 """
 
 from __future__ import annotations
@@ -57,7 +71,30 @@ def spline_bends(table: CurveTable, control_points: np.ndarray, curve: np.ndarra
 def bend_weights(bend_rad: np.ndarray, variance: np.ndarray) -> np.ndarray:
     """w = max(0, 1 − σ²/Δθ²) ∈ [0, 1] of each bend (g,) (rad) under its variance (g,)
     (rad²): 0 for a bend within its noise, → 1 for a significant one (0 for no bend at all)."""
-    b2 = np.square(np.asarray(bend_rad, dtype=float))
-    v = np.asarray(variance, dtype=float)
+    return significance(np.square(np.asarray(bend_rad, dtype=float)), np.asarray(variance, dtype=float))
+
+
+def significance(signal: np.ndarray | float, noise: np.ndarray | float) -> np.ndarray:
+    """w = max(0, 1 − noise/signal) ∈ [0, 1]: 0 for a signal within what the noise alone
+    gives (and for no signal), → 1 for one far beyond it; continuous in both."""
+    s, v = np.asarray(signal, dtype=float), np.asarray(noise, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(b2 <= v, 0.0, 1.0 - v / b2)
+        return np.where(s <= v, 0.0, 1.0 - v / s)
+
+
+def weakest_direction(H_c: np.ndarray) -> tuple[np.ndarray, float]:
+    """``(e (2,), λ)``: the unit direction along which the rows' robot-position Jacobians
+    (the first two columns of H_c (m, c)) say least, and what they say along it, λ the
+    smaller eigenvalue of Σ g gᵀ (dimensionless, as g is)."""
+    g = H_c[:, :2]
+    values, vectors = np.linalg.eigh(g.T @ g)
+    return vectors[:, 0], float(max(values[0], 0.0))
+
+
+def wall_angle_weight(H_c: np.ndarray, noise: float) -> tuple[np.ndarray, float]:
+    """``(e (2,), w)``: the scan's weakest direction (:func:`weakest_direction` of the rows
+    H_c, after the per-spline weights) and the weight of what the rows say along it, w =
+    max(0, 1 − N/λ) for the ``noise`` N = Σ_j I_j Var(ψ_j) that walls truly parallel would
+    give λ through their directions' uncertainty (the module docstring)."""
+    e, signal = weakest_direction(H_c)
+    return e, float(significance(signal, noise))

@@ -331,16 +331,16 @@ class SplineSLAM:
     def _linearize(self, beams, x, offset, window, report: StepReport | None = None):
         """The beams linearised at ``x`` (:meth:`RangeModel.linearize`), what each spline
         says along itself limited to what its bend at ``x`` supports under the prior
-        ``window`` (:meth:`RangeModel.bend_weights`, :meth:`RangeModel.limit_along_splines`:
+        ``window`` (:meth:`RangeModel.along_limits`, :meth:`RangeModel.limit_along_splines`:
         the beams the gates keep decide the bend), with the Jacobian the estimator works
         with (:meth:`Estimator.constrain`); None when no beam is left."""
         model, curves = self.measurement, self.spline_map.table
         lin = model.linearize(beams, curves, x, offset, report)
         if lin is None:
             return None
-        bends = model.bend_weights(beams, lin, curves, x,
-                                   lambda idx, rows: window.innovation_variances(*self.state.constrain(idx, rows, x), 0.0))
-        lin = model.limit_along_splines(beams, lin, curves, bends)
+        limits = model.along_limits(beams, lin, curves, x,
+                                    lambda idx, rows: window.innovation_variances(*self.state.constrain(idx, rows, x), 0.0))
+        lin = model.limit_along_splines(beams, lin, curves, limits)
         cols, H_c = self.state.constrain(lin.cols, lin.H_c, x)
         return lin if H_c is lin.H_c else dataclasses.replace(lin, cols=cols, H_c=H_c)
 

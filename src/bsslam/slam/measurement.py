@@ -36,7 +36,7 @@ from scipy.linalg import solve_triangular
 from bsslam.config import ObservationConfig
 from bsslam.scan import ObservedSpline
 from bsslam.slam import beam_kernels, bend_kernels, range_kernels
-from bsslam.slam.bends import bend_weights, spline_bends
+from bsslam.slam.bends import bend_weights, spline_bends, wall_angle_weight
 from bsslam.slam.association import Match
 from bsslam.se2 import compose
 from bsslam.slam.map_curves import MapCurves
@@ -92,6 +92,25 @@ class Linearization:
     R: float
     beam: np.ndarray
     hit_t: np.ndarray
+
+
+@dataclass(frozen=True)
+class AlongLimits:
+    """What the walls of one linearisation may say along themselves (:meth:`RangeModel.along_limits`).
+
+    Attributes:
+        labels, weights: (L,) the splines whose rows are scaled along their own mean
+            tangent, and their weights w ∈ [0, 1) (a bend within its noise: 0).
+        walls: (K,) every spline of the rows (all in the state) when the scan's weakest
+            direction is weighed, else None; wall_noise: N = Σ_j I_j Var(ψ_j), what those
+            walls, were they parallel, would say along it through their directions' noise
+            (dimensionless · rad², as Σ g gᵀ's eigenvalues).
+    """
+
+    labels: np.ndarray
+    weights: np.ndarray
+    walls: np.ndarray | None = None
+    wall_noise: float = 0.0
 
 
 def bearing_derivatives(H_c: np.ndarray, ranges_predicted: np.ndarray, beam_angles: np.ndarray) -> np.ndarray:
@@ -156,6 +175,7 @@ class RangeModel:
 
     def __init__(self, config: ObservationConfig):
         self.significant_bends_only = config.significant_bends_only
+        self.significant_wall_angles = config.significant_wall_angles
         self.second_order = config.second_order
         self.R = (config.sigma_range_m ** 2 + config.sigma_model_m ** 2) * config.r_inflation
         self.shared = config.sigma_shared_m ** 2 * config.r_inflation
@@ -368,42 +388,68 @@ class RangeModel:
         residual = solve_triangular(L, lin.residual, lower=True)
         return dataclasses.replace(lin, H_c=H_c, residual=residual)
 
-    def bend_weights(self, beams: Beams, lin: Linearization, curves: MapCurves, x: np.ndarray,
-                     variances_of) -> tuple[np.ndarray, np.ndarray] | None:
-        """How much of what each map spline of ``lin`` says along itself its bend supports
-        (:mod:`bsslam.slam.bends`): ``(curves (L,), w (L,))`` for the splines with w < 1, or
-        None (no such spline, or ``observation.significant_bends_only`` off).
+    def along_limits(self, beams: Beams, lin: Linearization, curves: MapCurves, x: np.ndarray,
+                     variances_of) -> AlongLimits | None:
+        """How much of what the rows of ``lin`` say along their walls their bends support
+        (:mod:`bsslam.slam.bends`), for :meth:`limit_along_splines`; None when neither
+        ``observation.significant_bends_only`` nor ``observation.significant_wall_angles``
+        is on, or neither applies.
+
         ``variances_of(state_indices (k,), rows (g, k))`` gives the prior variances (g,) of
-        linear functions of the state (a covariance window's), asked once for all the
-        splines; the bend is taken at ``x`` between the extreme hits of ``lin``'s rows."""
-        if not self.significant_bends_only:
+        linear functions of the state (a covariance window's); it is asked once, for the
+        bends of the splines with two hits or more (at ``x``, between the extreme hits of
+        ``lin``'s rows) and for the scan's walls' directions relative to one another (each
+        wall's mean tangent angle at its two extreme hits less their mean weighted by what
+        each wall's rows weigh). The scan's weakest direction and its weight need the rows
+        as the bends scale them, so :meth:`limit_along_splines` finds them."""
+        bends, walls = self.significant_bends_only, self.significant_wall_angles
+        if not (bends or walls):
             return None
-        # the splines with two hits or more whose control points are in the state (a handful a scan)
         table = curves.table
-        labels, t_first, t_last = bend_kernels.bend_groups(beams.curve[lin.beam], lin.hit_t,
-                                                           curves.state_rows[table.cp_start[:-1], 0])
-        if labels.shape[0] == 0:
+        group = beams.curve[lin.beam]
+        labels, t_first, t_last, count, info = bend_kernels.hit_groups(
+            group, lin.hit_t, lin.H_c, curves.state_rows[table.cp_start[:-1], 0])
+        # walls of localisation mode are exact: their angles are information, nothing to weigh
+        walls = walls and labels.shape[0] >= 2 and int(count.sum()) == group.shape[0]
+        bent = count >= 2 if bends else np.zeros(labels.shape[0], dtype=bool)
+        if not (walls or bent.any()):
             return None
+        if not walls:
+            labels, t_first, t_last = labels[bent], t_first[bent], t_last[bent]
+            bent = np.ones(labels.shape[0], dtype=bool)
         bend, rows, grad = spline_bends(table, curves.control_points(x), labels, t_first, t_last)
         g = labels.shape[0]
         # every control point of the splines, not only those the two tangents move: the
         # OC-EKF's constraint on a row depends on the columns it is given
         union = curves.state_indices(labels, x.shape[0])
-        A = bend_kernels.bend_gradient_rows(union, curves.state_rows[rows].reshape(g, -1), grad.reshape(g, -1))
+        index, grad = curves.state_rows[rows].reshape(g, -1), grad.reshape(g, -1)
+        A = bend_kernels.gradient_rows(union, index[bent], grad[bent], 1.0, 1.0)
+        if walls:
+            angles = bend_kernels.gradient_rows(union, index, grad, -0.5, 0.5)
+            A = np.vstack([A, angles - (info / info.sum()) @ angles])
         variances = variances_of(union, A)
-        weights = bend_weights(bend, variances)
+        weights = bend_weights(bend[bent], variances[: A.shape[0] - (g if walls else 0)])
         scaled = weights < 1.0
-        return (labels[scaled], weights[scaled]) if scaled.any() else None
+        return AlongLimits(labels[bent][scaled], weights[scaled],
+                           labels if walls else None, float(info @ variances[-g:]) if walls else 0.0)
 
     def limit_along_splines(self, beams: Beams, lin: Linearization, curves: MapCurves,
-                            weights: tuple[np.ndarray, np.ndarray] | None) -> Linearization:
-        """``lin`` with each spline's rows scaled along the spline by its weight
-        (:meth:`bend_weights`; ``lin`` itself when there is none); compiled:
-        :func:`bend_kernels.scale_along_splines`."""
-        if weights is None:
+                            limits: AlongLimits | None) -> Linearization:
+        """``lin`` with each spline's rows scaled along the spline by its weight, then every
+        row scaled along the scan's weakest direction by the walls' angles' weight
+        (:meth:`along_limits`, :func:`bsslam.slam.bends.wall_angle_weight`; ``lin`` itself
+        when neither applies); compiled: :func:`bend_kernels.scale_along_splines`,
+        :func:`bend_kernels.scale_along`."""
+        if limits is None:
             return lin
-        labels, w = weights
-        H_c = lin.H_c.copy()
-        bend_kernels.scale_along_splines(H_c, lin.cols, beams.curve[lin.beam], labels, w, curves.state_rows,
-                                         curves.table.cp_start)
+        H_c, group = lin.H_c.copy(), beams.curve[lin.beam]
+        if limits.labels.shape[0]:
+            bend_kernels.scale_along_splines(H_c, lin.cols, group, limits.labels, limits.weights, curves.state_rows,
+                                             curves.table.cp_start)
+        if limits.walls is not None:
+            e, w = wall_angle_weight(H_c, limits.wall_noise)
+            if w < 1.0:
+                L = limits.walls.shape[0]
+                bend_kernels.scale_along(H_c, lin.cols, group, limits.walls, np.broadcast_to(e, (L, 2)).copy(),
+                                         np.full(L, w), curves.state_rows, curves.table.cp_start)
         return dataclasses.replace(lin, H_c=H_c)
