@@ -268,6 +268,13 @@ def test_the_walls_weakest_direction_and_its_weight():
         assert wall_angle_weight(H, noise)[1] == pytest.approx(expected, abs=1e-9)
     across = rows([0.001, np.pi - 0.001, np.pi / 2])
     assert wall_angle_weight(across, 1e-4 * 40)[1] > 0.99      # a wall across: ψ's noise of 10 mrad is nothing
+    # the closed form against numpy's eigh, on random rows and on rows along the axes
+    rng = np.random.default_rng(3)
+    for H in [rng.normal(size=(9, 4)) * [3.0, 0.2, 1.0, 1.0] for _ in range(20)] + [rows([0.0]), rows([np.pi / 2])]:
+        values, vectors = np.linalg.eigh(H[:, :2].T @ H[:, :2])
+        e, signal = weakest_direction(H)
+        assert signal == pytest.approx(max(values[0], 0.0), abs=1e-12 * values[1])
+        assert abs(e @ vectors[:, 0]) == pytest.approx(1.0, abs=1e-9)
 
 
 def test_scaling_along_one_direction_removes_it_from_every_wall_and_keeps_the_gauge():
@@ -311,6 +318,10 @@ def test_the_compiled_bookkeeping_matches_numpy():
     index = rng.integers(3, 30, (4, 16))
     grad = rng.normal(size=(4, 16))
     union = np.union1d(np.unique(index), [0, 1, 31])       # columns no gradient touches too
+    info = rng.uniform(1.0, 5.0, 4)
+    angles = bend_kernels.wall_angle_rows(union, index, grad, info)
+    mean_rows = bend_kernels.gradient_rows(union, index, grad, -0.5, 0.5)
+    np.testing.assert_allclose(angles, mean_rows - (info / info.sum()) @ mean_rows, rtol=1e-12, atol=1e-14)
     for first, last in ((1.0, 1.0), (-0.5, 0.5)):
         A = bend_kernels.gradient_rows(union, index, grad, first, last)
         dense = np.zeros((4, 32))

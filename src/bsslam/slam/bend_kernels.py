@@ -247,3 +247,26 @@ def gradient_rows(union, state_index, grad, first_weight, last_weight):
             weight = first_weight if j < half else last_weight
             A[i, np.searchsorted(union, state_index[i, j])] += weight * grad[i, j]
     return A
+
+
+@jit
+def wall_angle_rows(union, state_index, grad, info):
+    """The walls' mean tangent angles relative to one another as rows over the state indices
+    ``union`` (k,): A (g, k), row j the gradient of ψ_j = θ_j − Σ_k s_k θ_k, θ_j the mean of
+    wall j's tangent angles at its two parameters (:func:`gradient_rows` with weights −½, ½
+    of :func:`tangent_turns`' gradients) and s_k = info_k / Σ info its share (``info`` (g,),
+    what each wall's rows weigh)."""
+    A = gradient_rows(union, state_index, grad, -0.5, 0.5)
+    g, k = A.shape
+    total = 0.0
+    for i in range(g):
+        total += info[i]
+    mean = np.zeros(k)
+    for i in range(g):
+        share = info[i] / total
+        for j in range(k):
+            mean[j] += share * A[i, j]
+    for i in range(g):
+        for j in range(k):
+            A[i, j] -= mean[j]
+    return A

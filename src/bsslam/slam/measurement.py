@@ -425,8 +425,7 @@ class RangeModel:
         index, grad = curves.state_rows[rows].reshape(g, -1), grad.reshape(g, -1)
         A = bend_kernels.gradient_rows(union, index[bent], grad[bent], 1.0, 1.0)
         if walls:
-            angles = bend_kernels.gradient_rows(union, index, grad, -0.5, 0.5)
-            A = np.vstack([A, angles - (info / info.sum()) @ angles])
+            A = np.vstack([A, bend_kernels.wall_angle_rows(union, index, grad, info)])
         variances = variances_of(union, A)
         weights = bend_weights(bend[bent], variances[: A.shape[0] - (g if walls else 0)])
         scaled = weights < 1.0
