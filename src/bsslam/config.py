@@ -261,7 +261,7 @@ class ObservationConfig:
             walls"). A corner, an arc or a wall across the corridor in view keeps all it says.
             False = without it (and the paper's update: ``bsslam experiment`` turns both
             off). On by default: with the invariant EKF the simulated long corridor's NEES
-            falls from 8.0 to 4.8 over thirty seeds, the corridor loop stays in its band on
+            falls from 8.0 to 5.2 over thirty seeds, the corridor loop stays in its band on
             54 % and 39 % of the steps (26 % and 16 % without), the rooms as without it
             (README, Consistency).
         second_order: each scan's update also weighs the ranges' second-order error, the
