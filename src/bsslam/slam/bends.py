@@ -78,10 +78,11 @@ def bend_weights(bend_rad: np.ndarray, variance: np.ndarray) -> np.ndarray:
 
 def significance(signal: np.ndarray | float, noise: np.ndarray | float) -> np.ndarray:
     """w = max(0, 1 − noise/signal) ∈ [0, 1]: 0 for a signal within what the noise alone
-    gives (and for no signal), → 1 for one far beyond it; continuous in both."""
+    gives (and for no signal), → 1 for one far beyond it; continuous in both. (The
+    denominator is 1 where the weight is 0, so no division by zero is ever made.)"""
     s, v = np.asarray(signal, dtype=float), np.asarray(noise, dtype=float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(s <= v, 0.0, 1.0 - v / s)
+    within = s <= v
+    return np.where(within, 0.0, 1.0 - v / np.where(within, 1.0, s))
 
 
 def weakest_direction(H_c: np.ndarray) -> tuple[np.ndarray, float]:
@@ -101,7 +102,6 @@ def wall_angle_weight(H_c: np.ndarray, noise: float) -> tuple[np.ndarray, float]
     """``(e (2,), w)``: the scan's weakest direction (:func:`weakest_direction` of the rows
     H_c, after the per-spline weights) and the weight of what the rows say along it, w =
     max(0, 1 − N/λ) for the ``noise`` N = Σ_j I_j Var(ψ_j) that walls truly parallel would
-    give λ through their directions' uncertainty (the module docstring; :func:`significance`
-    for one number)."""
+    give λ through their directions' uncertainty (the module docstring, :func:`significance`)."""
     e, signal = weakest_direction(H_c)
-    return e, (0.0 if signal <= noise else 1.0 - noise / signal)
+    return e, float(significance(signal, noise))

@@ -545,4 +545,3 @@ class SplineSLAM:
         rows = self.spline_map.state_indices(feature_ids)
         mapping = self.state.remove(rows) if rows is not None else None
         self.spline_map.remove(feature_ids, mapping)
-

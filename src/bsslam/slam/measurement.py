@@ -427,10 +427,11 @@ class RangeModel:
         if walls:
             A = np.vstack([A, bend_kernels.wall_angle_rows(union, index, grad, info)])
         variances = variances_of(union, A)
-        weights = bend_weights(bend[bent], variances[: A.shape[0] - (g if walls else 0)])
+        n_bent = int(np.count_nonzero(bent))    # the bends' rows first, then the walls'
+        weights = bend_weights(bend[bent], variances[:n_bent])
         scaled = weights < 1.0
         return AlongLimits(labels[bent][scaled], weights[scaled],
-                           labels if walls else None, float(info @ variances[-g:]) if walls else 0.0)
+                           labels if walls else None, float(info @ variances[n_bent:]) if walls else 0.0)
 
     def limit_along_splines(self, beams: Beams, lin: Linearization, curves: MapCurves,
                             limits: AlongLimits | None) -> Linearization:
