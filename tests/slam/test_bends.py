@@ -18,7 +18,8 @@ from bsslam.pipeline import run_dataset
 from bsslam.sim import SimConfig, simulate
 from bsslam.sim.worlds import large_corridor
 from bsslam.slam import bend_kernels
-from bsslam.slam.bends import bend_weights, spline_bends
+from bsslam.slam.bend_kernels import bend_weights, significance
+from bsslam.slam.bends import spline_bends
 from bsslam.spline.basis import basis_functions
 from bsslam.spline.batch import curve_table
 from bsslam.spline.curve import BSplineCurve
@@ -150,6 +151,25 @@ def test_the_bends_of_a_table_of_curves_match_the_one_curve_form():
         outside[start:start + n] = False
         assert not full[outside].any()                  # nothing on another curve's control points
     assert 0.15 < bend[4] < 0.3                         # wrapped: +12°-ish, not −348°
+
+
+def significance_oracle(signal, noise):
+    """The numpy form of :func:`bend_kernels.significance`: max(0, 1 − noise/signal), 0
+    where signal ≤ noise (no division there)."""
+    s, v = np.asarray(signal, dtype=float), np.asarray(noise, dtype=float)
+    within = s <= v
+    return np.where(within, 0.0, 1.0 - v / np.where(within, 1.0, s))
+
+
+def test_the_compiled_weights_are_the_numpy_formula_bit_for_bit():
+    rng = np.random.default_rng(5)
+    bend = np.concatenate([rng.normal(0.0, 0.05, 200), [0.0, 0.0, 1e-3, -1e-3, np.pi]])
+    variance = np.concatenate([rng.uniform(0.0, 2e-3, 200), [0.0, 1e-6, 1e-6, 1e-6, 0.0]])
+    got = bend_weights(bend, variance)
+    np.testing.assert_array_equal(got, significance_oracle(np.square(bend), variance))
+    assert 0 < np.count_nonzero(got == 0.0) < got.shape[0]          # both branches taken
+    for s, v in zip(np.square(bend[:20]), variance[:20]):
+        assert significance(float(s), float(v)) == significance_oracle(s, v)
 
 
 def test_the_weight_is_zero_within_the_noise_continuous_and_tends_to_one():
@@ -409,7 +429,7 @@ def test_the_filter_weighs_and_scales_as_the_oracles_do(monkeypatch, estimator):
             seen["scaled"] += len(limits.labels) > 0
             if limits.walls is not None:
                 values, vectors = np.linalg.eigh(expected[:, :2].T @ expected[:, :2])
-                w = float(bend_weights(np.sqrt(max(values[0], 0.0)), limits.wall_noise))
+                w = float(significance_oracle(max(values[0], 0.0), limits.wall_noise))
                 if w < 1.0:
                     scale_along_oracle(expected, lin.cols, group, {int(c): vectors[:, 0] for c in limits.walls},
                                        {int(c): w for c in limits.walls}, indices)

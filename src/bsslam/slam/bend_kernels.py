@@ -1,9 +1,10 @@
 """Compiled steps of limiting what a map spline says along itself to its significant bend
 (:mod:`bsslam.slam.bends`): which splines are weighed and where their hits lie
 (:func:`hit_groups`), the angle each turns between them and its gradient
-(:func:`tangent_turns`), those gradients as rows over the state (:func:`gradient_rows`)
-and the Jacobian's rows scaled along their splines or along one direction for all of them
-(:func:`scale_along_splines`, :func:`scale_along`). Written as numpy they were a few dozen
+(:func:`tangent_turns`), those gradients as rows over the state (:func:`gradient_rows`,
+:func:`wall_angle_rows`, both stacked by :func:`along_rows`) and the Jacobian's rows scaled
+along their splines or along one direction for all of them (:func:`scale_along_splines`,
+:func:`scale_along`, :func:`scale_along_direction`). Written as numpy they were a few dozen
 small array calls per linearisation, about a fifth of a simulated run's time; the numpy
 forms are the oracles in ``tests/slam/test_bends.py``.
 """
@@ -15,17 +16,20 @@ import math
 import numpy as np
 
 from bsslam.compiled import jit
+from bsslam.spline.kernels import piece_of
 
 
 @jit
-def tangent_turns(power_basis, window, real, piece, u, control_points):
+def tangent_turns(power_basis, window, real, piece_lo, piece_start, lo, hi, curve, t_first, t_last, control_points):
     """The angle Δθ each of g curves turns between two parameters, and its gradient over
     the control points the two tangents depend on.
 
     Args:
-        power_basis, window, real: a :class:`~bsslam.spline.batch.CurveTable`'s arrays.
-        piece, u: (2g,) the pieces and local parameters (m) of the first parameters of the g
-            curves, then of their last ones (:meth:`CurveTable.locate`).
+        power_basis, window, real, piece_lo, piece_start, lo, hi: a
+            :class:`~bsslam.spline.batch.CurveTable`'s arrays.
+        curve: (g,) curve indices; t_first, t_last: (g,) finite parameters on them (m),
+            each located as :meth:`CurveTable.locate` does (clamped into its curve's domain,
+            the last piece starting at or before it).
         control_points: (N, 2) the table's stacked control points (m).
 
     Returns:
@@ -36,8 +40,8 @@ def tangent_turns(power_basis, window, real, piece, u, control_points):
         its gradients add). The tangent angle of C'(t) = Σ_j β'_j(t) c_j moves by
         δθ = (C'_x δC'_y − C'_y δC'_x)/|C'|².
     """
-    n2 = piece.shape[0]
-    g = n2 // 2
+    g = curve.shape[0]
+    n2 = 2 * g
     w = window.shape[1]
     p = power_basis.shape[1] - 1
     angle = np.empty(n2)
@@ -45,8 +49,11 @@ def tangent_turns(power_basis, window, real, piece, u, control_points):
     grad = np.zeros((g, 2 * w, 2))
     d_beta = np.empty(w)
     for m in range(n2):
-        s = piece[m]
         i = m % g
+        c = curve[i]
+        t = min(max(t_first[i] if m < g else t_last[i], lo[c]), hi[c])
+        s = piece_of(piece_lo, piece_start[c], piece_start[c + 1] - 1, t)
+        u = t - piece_lo[s]
         sign = -1.0 if m < g else 1.0
         offset = 0 if m < g else w
         dx = 0.0
@@ -58,7 +65,7 @@ def tangent_turns(power_basis, window, real, piece, u, control_points):
                 power = 1.0
                 for k in range(1, p + 1):
                     value += k * power_basis[s, k, r] * power
-                    power *= u[m]
+                    power *= u
             d_beta[r] = value
             row = window[s, r]
             dx += value * control_points[row, 0]
@@ -74,6 +81,26 @@ def tangent_turns(power_basis, window, real, piece, u, control_points):
         a = angle[g + i] - angle[i]
         bend[i] = math.pi - (math.pi - a) % (2.0 * math.pi)
     return bend, rows, grad
+
+
+@jit
+def significance(signal, noise):
+    """w = max(0, 1 − noise/signal) ∈ [0, 1] (floats): 0 for a signal within what the noise
+    alone gives (and for no signal), → 1 for one far beyond it; continuous in both. No
+    division by zero is ever made (the weight is 0 there). The numpy form is the oracle in
+    ``tests/slam/test_bends.py``."""
+    return 0.0 if signal <= noise else 1.0 - noise / signal
+
+
+@jit
+def bend_weights(bend, variance):
+    """(g,) w = max(0, 1 − σ²/Δθ²) ∈ [0, 1] of each bend Δθ (g,) (rad) under its variance σ²
+    (g,) (rad²) (:func:`significance`): 0 for a bend within its noise (and for no bend at
+    all), → 1 for a significant one."""
+    out = np.empty(bend.shape[0])
+    for i in range(bend.shape[0]):
+        out[i] = significance(bend[i] * bend[i], variance[i])
+    return out
 
 
 @jit
@@ -178,6 +205,16 @@ def scale_along(H_c, cols, group, labels, tangents, weights, state_rows, cp_star
 
 
 @jit
+def scale_along_direction(H_c, cols, group, labels, direction, weight, state_rows, cp_start):
+    """:func:`scale_along` with one unit direction (2,) and one weight for every curve of
+    ``labels`` (the scan's weakest direction, :func:`bsslam.slam.bends.wall_angle_weight`)."""
+    tangents = np.empty((labels.shape[0], 2))
+    tangents[:, 0] = direction[0]
+    tangents[:, 1] = direction[1]
+    scale_along(H_c, cols, group, labels, tangents, np.full(labels.shape[0], weight), state_rows, cp_start)
+
+
+@jit
 def hit_groups(group, hit_t, H_c, first_state_row):
     """The map splines a scan's rows hit whose control points are in the state, their
     extreme hits, their rows and what their rows weigh.
@@ -270,3 +307,23 @@ def wall_angle_rows(union, state_index, grad, info):
         for j in range(k):
             A[i, j] -= mean[j]
     return A
+
+
+@jit
+def along_rows(union, state_index, grad, bent, info, walls):
+    """The rows whose prior variances :meth:`~bsslam.slam.measurement.RangeModel.along_limits`
+    asks for, stacked (b + g, k) over the state indices ``union`` (k,): the bends of the
+    ``bent`` (g,) curves (:func:`gradient_rows`, weights 1, 1), then, when ``walls``, the
+    walls' relative angles of all g (:func:`wall_angle_rows`, with ``info`` (g,)).
+
+    Args: ``state_index``, ``grad`` (g, r) as :func:`gradient_rows` takes them, for all g curves.
+    """
+    bends = gradient_rows(union, state_index[bent], grad[bent], 1.0, 1.0)
+    if not walls:
+        return bends
+    angles = wall_angle_rows(union, state_index, grad, info)
+    b = bends.shape[0]
+    out = np.empty((b + angles.shape[0], union.shape[0]))
+    out[:b] = bends
+    out[b:] = angles
+    return out

@@ -42,6 +42,7 @@ import math
 import numpy as np
 
 from bsslam.slam import bend_kernels
+from bsslam.slam.bend_kernels import significance
 from bsslam.spline.batch import CurveTable
 
 
@@ -54,7 +55,7 @@ def spline_bends(table: CurveTable, control_points: np.ndarray, curve: np.ndarra
         table: the curves' knot structure; control_points: (N, 2) its stacked control
             points at the linearisation point (m).
         curve: (g,) curve indices; t_first, t_last: (g,) the parameters of each curve's
-            first and last hit (m).
+            first and last hit (m), finite.
 
     Returns:
         ``(bend, rows, grad)``: bend (g,) the tangent angle at ``t_last`` less that at
@@ -65,24 +66,10 @@ def spline_bends(table: CurveTable, control_points: np.ndarray, curve: np.ndarra
         The tangent angle of C'(t) = Σ_j β'_j(t) c_j moves by
         δθ = (C'_x δC'_y − C'_y δC'_x)/|C'|².
     """
-    piece, u, _ = table.locate(np.concatenate([curve, curve]), np.concatenate([t_first, t_last]))
-    return bend_kernels.tangent_turns(table.power_basis, table.window, table.real, piece, u,
+    return bend_kernels.tangent_turns(table.power_basis, table.window, table.real, table.piece_lo, table.piece_start,
+                                      table.lo, table.hi, np.asarray(curve, dtype=np.intp),
+                                      np.asarray(t_first, dtype=float), np.asarray(t_last, dtype=float),
                                       np.ascontiguousarray(control_points, dtype=float))
-
-
-def bend_weights(bend_rad: np.ndarray, variance: np.ndarray) -> np.ndarray:
-    """w = max(0, 1 − σ²/Δθ²) ∈ [0, 1] of each bend (g,) (rad) under its variance (g,)
-    (rad²): 0 for a bend within its noise, → 1 for a significant one (0 for no bend at all)."""
-    return significance(np.square(np.asarray(bend_rad, dtype=float)), np.asarray(variance, dtype=float))
-
-
-def significance(signal: np.ndarray | float, noise: np.ndarray | float) -> np.ndarray:
-    """w = max(0, 1 − noise/signal) ∈ [0, 1]: 0 for a signal within what the noise alone
-    gives (and for no signal), → 1 for one far beyond it; continuous in both. (The
-    denominator is 1 where the weight is 0, so no division by zero is ever made.)"""
-    s, v = np.asarray(signal, dtype=float), np.asarray(noise, dtype=float)
-    within = s <= v
-    return np.where(within, 0.0, 1.0 - v / np.where(within, 1.0, s))
 
 
 def weakest_direction(H_c: np.ndarray) -> tuple[np.ndarray, float]:
@@ -102,6 +89,6 @@ def wall_angle_weight(H_c: np.ndarray, noise: float) -> tuple[np.ndarray, float]
     """``(e (2,), w)``: the scan's weakest direction (:func:`weakest_direction` of the rows
     H_c, after the per-spline weights) and the weight of what the rows say along it, w =
     max(0, 1 − N/λ) for the ``noise`` N = Σ_j I_j Var(ψ_j) that walls truly parallel would
-    give λ through their directions' uncertainty (the module docstring, :func:`significance`)."""
+    give λ through their directions' uncertainty (the module docstring, :func:`~bsslam.slam.bend_kernels.significance`)."""
     e, signal = weakest_direction(H_c)
-    return e, float(significance(signal, noise))
+    return e, significance(signal, float(noise))

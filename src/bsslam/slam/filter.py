@@ -10,7 +10,6 @@ prune. It works through three seams: the joint Gaussian is an
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -342,7 +341,7 @@ class SplineSLAM:
                                     lambda idx, rows: window.innovation_variances(*self.state.constrain(idx, rows, x), 0.0))
         lin = model.limit_along_splines(beams, lin, curves, limits)
         cols, H_c = self.state.constrain(lin.cols, lin.H_c, x)
-        return lin if H_c is lin.H_c else dataclasses.replace(lin, cols=cols, H_c=H_c)
+        return lin if H_c is lin.H_c else lin.with_rows(cols, H_c)
 
     def _gated(self, beams, lin, window, x0, work, offset, report: StepReport):
         """The beams whose innovations pass the gates, linearised at the first corrected

@@ -36,7 +36,7 @@ from scipy.linalg import solve_triangular
 from bsslam.config import ObservationConfig
 from bsslam.scan import ObservedSpline
 from bsslam.slam import beam_kernels, bend_kernels, range_kernels
-from bsslam.slam.bends import bend_weights, spline_bends, wall_angle_weight
+from bsslam.slam.bends import spline_bends, wall_angle_weight
 from bsslam.slam.association import Match
 from bsslam.se2 import compose
 from bsslam.slam.map_curves import MapCurves
@@ -92,6 +92,12 @@ class Linearization:
     R: float
     beam: np.ndarray
     hit_t: np.ndarray
+
+    def with_rows(self, cols: np.ndarray, H_c: np.ndarray) -> Linearization:
+        """The same beams with the Jacobian H_c (m, c') on ``cols`` (c',) instead (a
+        constrained or scaled one): ``dataclasses.replace`` at a third of its cost, which
+        counts at several calls a scan."""
+        return Linearization(cols, H_c, self.residual, self.R, self.beam, self.hit_t)
 
 
 @dataclass(frozen=True)
@@ -423,12 +429,9 @@ class RangeModel:
         # OC-EKF's constraint on a row depends on the columns it is given
         union = curves.state_indices(labels, x.shape[0])
         index, grad = curves.state_rows[rows].reshape(g, -1), grad.reshape(g, -1)
-        A = bend_kernels.gradient_rows(union, index[bent], grad[bent], 1.0, 1.0)
-        if walls:
-            A = np.vstack([A, bend_kernels.wall_angle_rows(union, index, grad, info)])
-        variances = variances_of(union, A)
+        variances = variances_of(union, bend_kernels.along_rows(union, index, grad, bent, info, walls))
         n_bent = int(np.count_nonzero(bent))    # the bends' rows first, then the walls'
-        weights = bend_weights(bend[bent], variances[:n_bent])
+        weights = bend_kernels.bend_weights(bend[bent], variances[:n_bent])
         scaled = weights < 1.0
         return AlongLimits(labels[bent][scaled], weights[scaled],
                            labels if walls else None, float(info @ variances[n_bent:]) if walls else 0.0)
@@ -439,7 +442,7 @@ class RangeModel:
         row scaled along the scan's weakest direction by the walls' angles' weight
         (:meth:`along_limits`, :func:`bsslam.slam.bends.wall_angle_weight`; ``lin`` itself
         when neither applies); compiled: :func:`bend_kernels.scale_along_splines`,
-        :func:`bend_kernels.scale_along`."""
+        :func:`bend_kernels.scale_along_direction`."""
         if limits is None:
             return lin
         H_c, group = lin.H_c.copy(), beams.curve[lin.beam]
@@ -449,7 +452,6 @@ class RangeModel:
         if limits.walls is not None:
             e, w = wall_angle_weight(H_c, limits.wall_noise)
             if w < 1.0:
-                L = limits.walls.shape[0]
-                bend_kernels.scale_along(H_c, lin.cols, group, limits.walls, np.broadcast_to(e, (L, 2)).copy(),
-                                         np.full(L, w), curves.state_rows, curves.table.cp_start)
-        return dataclasses.replace(lin, H_c=H_c)
+                bend_kernels.scale_along_direction(H_c, lin.cols, group, limits.walls, e, w, curves.state_rows,
+                                                   curves.table.cp_start)
+        return lin.with_rows(lin.cols, H_c)

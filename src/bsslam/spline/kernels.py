@@ -52,7 +52,7 @@ def search_left(a, lo, hi, v):
 
 
 @jit
-def _piece_of(piece_lo, first, last, t):
+def piece_of(piece_lo, first, last, t):
     """Global index of the piece of a curve (pieces first … last) holding t: the last piece
     starting at or before t (t inside the curve's domain), as numpy's
     ``searchsorted(…, side="right") − 1`` finds it (pieces first+1 … last are bisected)."""
@@ -97,7 +97,7 @@ def ray_newton(coeffs_t, piece_lo, piece_start, lo, hi, curve, ox, oy, cos, sin,
         px, py = (ox[0], oy[0]) if shared else (ox[r], oy[r])
         t = min(max(t0[r], lo[c]), hi[c])
         for _ in range(max_newton):
-            piece = _piece_of(piece_lo, first, last, t)
+            piece = piece_of(piece_lo, first, last, t)
             vx, vy, dx, dy = _value_and_slope(coeffs_t, piece, t - piece_lo[piece])
             yt = (vy - py) * a1 + (vx - px) * a0
             yt /= dy * a1 + dx * a0
@@ -111,7 +111,7 @@ def ray_newton(coeffs_t, piece_lo, piece_start, lo, hi, curve, ox, oy, cos, sin,
             t = t_new
             if not step > threshold:
                 break
-        piece = _piece_of(piece_lo, first, last, t)
+        piece = piece_of(piece_lo, first, last, t)
         vx, vy, dx, dy = _value_and_slope(coeffs_t, piece, t - piece_lo[piece])
         sx, sy = vx - px, vy - py
         xt = sx * cos[r] + sy * sin[r]
@@ -190,7 +190,7 @@ def closest_newton(coeffs_t, piece_lo, piece_start, lo, hi, curve, qx, qy, t0, m
             c = curve[i]
             ti = t[i]
             tc = min(max(ti, lo[c]), hi[c])
-            piece = _piece_of(piece_lo, piece_start[c], piece_start[c + 1] - 1, tc)
+            piece = piece_of(piece_lo, piece_start[c], piece_start[c + 1] - 1, tc)
             sx, sy, s1x, s1y, s2x, s2y = _value_slope_curvature(coeffs_t, piece, tc - piece_lo[piece])
             ex, ey = sx - qx[i], sy - qy[i]
             d2 = ex * ex + ey * ey
@@ -216,7 +216,7 @@ def closest_newton(coeffs_t, piece_lo, piece_start, lo, hi, curve, qx, qy, t0, m
     for i in range(k):
         c = curve[i]
         tc = min(max(t[i], lo[c]), hi[c])
-        piece = _piece_of(piece_lo, piece_start[c], piece_start[c + 1] - 1, tc)
+        piece = piece_of(piece_lo, piece_start[c], piece_start[c + 1] - 1, tc)
         px, py = _point(coeffs_t, piece, tc - piece_lo[piece])
         dx, dy = px - qx[i], py - qy[i]
         d2 = dx * dx + dy * dy
@@ -283,7 +283,7 @@ def sampled_minima(coeffs_t, control_points, window, piece_lo, width, piece_star
         t_grid[g] = hi[c]
         for g in range(grid_start[c], grid_start[c + 1]):
             t = min(max(t_grid[g], lo[c]), hi[c])
-            piece = _piece_of(piece_lo, first, last, t)
+            piece = piece_of(piece_lo, first, last, t)
             px[g], py[g] = _point(coeffs_t, piece, t - piece_lo[piece])
     # the minima of each query's distances along its curve's samples
     n_q = curve.shape[0]
@@ -336,7 +336,7 @@ def point_at(coeffs_t, piece_lo, first, last, lo, hi, t):
     functions costs a reference count up and down (tens of ns each, more than the point)."""
     if not math.isnan(t):
         t = min(max(t, lo), hi)
-    piece = _piece_of(piece_lo, first, last, t)
+    piece = piece_of(piece_lo, first, last, t)
     return _point(coeffs_t, piece, t - piece_lo[piece])
 
 
@@ -419,7 +419,7 @@ def hit_basis(power_basis, piece_lo, piece_start, lo, hi, curve, t):
     for j in range(m):
         c = curve[j]
         tc = min(max(t[j], lo[c]), hi[c])
-        s = _piece_of(piece_lo, piece_start[c], piece_start[c + 1] - 1, tc)
+        s = piece_of(piece_lo, piece_start[c], piece_start[c + 1] - 1, tc)
         piece[j] = s
         u = tc - piece_lo[s]
         for r in range(n_coef):
