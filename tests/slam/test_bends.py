@@ -151,6 +151,20 @@ def test_the_bends_of_a_table_of_curves_match_the_one_curve_form():
         outside[start:start + n] = False
         assert not full[outside].any()                  # nothing on another curve's control points
     assert 0.15 < bend[4] < 0.3                         # wrapped: +12°-ish, not −348°
+    # the tangents' windows are those of the pieces CurveTable.locate finds: on interior
+    # breaks (the piece starting there), beyond the domain (clamped) and anywhere inside
+    starts = table.piece_start
+    at_break = np.array([table.piece_lo[starts[c] + 1] for c in which])
+    t_first = np.concatenate([at_break, lo - 1.0, rng.uniform(lo, hi)])
+    t_last = np.concatenate([hi + 1.0, at_break, rng.uniform(lo, hi)])
+    three = np.tile(which, 3)
+    _, rows, _ = spline_bends(table, stacked, three, t_first, t_last)
+    w = table.window.shape[1]
+    first, _, _ = table.locate(three, t_first)
+    last, _, _ = table.locate(three, t_last)
+    assert np.array_equal(first[:5], starts[which] + 1)
+    np.testing.assert_array_equal(rows[:, :w], table.window[first])
+    np.testing.assert_array_equal(rows[:, w:], table.window[last])
 
 
 def significance_oracle(signal, noise):
