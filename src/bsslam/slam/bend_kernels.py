@@ -312,9 +312,9 @@ def wall_angle_rows(union, state_index, grad, info):
 @jit
 def along_rows(union, state_index, grad, bent, info, walls):
     """The rows whose prior variances :meth:`~bsslam.slam.measurement.RangeModel.along_limits`
-    asks for, stacked (b + g, k) over the state indices ``union`` (k,): the bends of the
-    ``bent`` (g,) curves (:func:`gradient_rows`, weights 1, 1), then, when ``walls``, the
-    walls' relative angles of all g (:func:`wall_angle_rows`, with ``info`` (g,)).
+    asks for, stacked (b + g, k) over the state indices ``union`` (k,): the bends of the b
+    curves where ``bent`` (g,) is True (:func:`gradient_rows`, weights 1, 1), then, when
+    ``walls``, the relative angles of all g (:func:`wall_angle_rows`, with ``info`` (g,)).
 
     Args: ``state_index``, ``grad`` (g, r) as :func:`gradient_rows` takes them, for all g curves.
     """
