@@ -95,8 +95,8 @@ class Linearization:
 
     def with_rows(self, cols: np.ndarray, H_c: np.ndarray) -> Linearization:
         """The same beams with the Jacobian H_c (m, c') on ``cols`` (c',) instead (a
-        constrained or scaled one): ``dataclasses.replace`` at a third of its cost, which
-        counts at several calls a scan."""
+        constrained or scaled one): ``dataclasses.replace`` at under half its cost (0.9 µs
+        against 2.0), which counts at several calls a scan."""
         return Linearization(cols, H_c, self.residual, self.R, self.beam, self.hit_t)
 
 
